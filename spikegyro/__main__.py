@@ -1,0 +1,3 @@
+from spikegyro.cli import main
+
+main()

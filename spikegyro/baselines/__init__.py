@@ -1,0 +1,1 @@
+"""Non-learned baselines: mean predictor and contrast maximization."""

@@ -1,0 +1,66 @@
+"""The ``spikegyro`` command line: one Typer app over every stage of the pipeline.
+
+Each stage keeps its commands in its own ``commands`` module; this file only wires them up and
+turns :class:`~spikegyro.errors.InputError` into one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from spikegyro import __version__
+from spikegyro.errors import InputError
+from spikegyro.events import commands as events_commands
+
+app = typer.Typer(
+    name="spikegyro",
+    help="Event camera as a gyroscope: simulate, train, evaluate and run spiking networks.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+
+_state = {"debug": False}
+
+
+@app.callback()
+def _root(
+    debug: bool = typer.Option(False, "--debug", help="Show full tracebacks on errors."),
+    version: bool = typer.Option(False, "--version", help="Print the version and exit."),
+) -> None:
+    _state["debug"] = debug
+    if version:
+        typer.echo(__version__)
+        raise typer.Exit()
+
+
+app.command("info")(events_commands.info)
+
+
+def main() -> None:
+    """Entry point: run the app, printing user errors as one line (exit 2)."""
+    try:
+        app(standalone_mode=False)
+    except InputError as exc:
+        if _state["debug"]:
+            raise
+        typer.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+    except typer.Abort:
+        typer.echo("aborted", err=True)
+        sys.exit(130)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except Exception as exc:  # click usage errors carry their own exit code
+        import click
+
+        if isinstance(exc, click.ClickException):
+            exc.show()
+            sys.exit(exc.exit_code)
+        raise
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""Metrics, per-speed bins, figures and reports."""

@@ -1,0 +1,397 @@
+"""Readers and writers for event and gyro files, with format detection by extension and content.
+
+Formats (``detect_format`` names):
+
+- ``hdf5``: the official layout of the paper's dataset (datasets ``ev_xy`` (N, 2), ``ev_ts`` (N,)
+  microseconds, ``ev_pol`` (N,) 0/1, ``ang_xyz`` (K, 3) rad/s, ``ang_ts`` (K,) microseconds) and our
+  sequence files, which add HDF5 attributes (``width``, ``height``, intrinsics, thresholds, ...).
+- ``npz``: arrays ``x, y, t, p`` (+ ``gyro_t``, ``gyro_omega``), ``width``, ``height``, ``attrs``.
+- ``events_txt``: Event Camera Dataset ``events.txt``, one event per line ``t x y p``, t in seconds.
+- ``imu_txt``: ``t ax ay az gx gy gz`` (seconds, m/s^2, rad/s); only the gyro is kept.
+- ``gyro_txt``: ``t wx wy wz`` (seconds, rad/s).
+- ``ecd_dir``: a folder holding ``events.txt`` and optionally ``imu.txt`` or ``gyro.txt``.
+
+Text files are parsed block by block with NumPy (no Python object per line), so multi-GB files
+read at disk speed and :func:`iter_event_chunks` streams them in bounded memory.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from spikegyro.errors import InputError
+from spikegyro.events.core import EventArray, GyroTrace, Recording
+
+DEFAULT_SENSOR = (240, 180)
+OFFICIAL_KEYS = ("ev_xy", "ev_ts", "ev_pol", "ang_xyz", "ang_ts")
+_TEXT_BLOCK_BYTES = 1 << 24
+
+
+def detect_format(path: str | os.PathLike) -> str:
+    """Name the format of ``path`` from its extension and, for text, its first data line."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file or directory.")
+    if path.is_dir():
+        if (path / "events.txt").exists():
+            return "ecd_dir"
+        raise InputError(f"{path}: a folder without events.txt; give an event file instead.")
+    suffix = path.suffix.lower()
+    if suffix in (".h5", ".hdf5"):
+        return "hdf5"
+    if suffix == ".npz":
+        return "npz"
+    if suffix in (".txt", ".csv", ".dat"):
+        first = _first_data_row(path)
+        if first.size == 7:
+            return "imu_txt"
+        if first.size == 4:
+            x, y, p = first[1], first[2], first[3]
+            integral = x == int(x) and y == int(y) and p in (0.0, 1.0, -1.0)
+            if integral and "gyro" not in path.name.lower():
+                return "events_txt"
+            return "gyro_txt"
+        raise InputError(
+            f"{path}: text file with {first.size} columns; expected 't x y p' events (4), "
+            "'t wx wy wz' gyro (4) or 't ax ay az gx gy gz' IMU (7)."
+        )
+    raise InputError(
+        f"{path}: unknown format '{suffix}'; use .h5/.hdf5, .npz, or a .txt event/gyro file."
+    )
+
+
+def _first_data_row(path: Path) -> np.ndarray:
+    with open(path, "rb") as f:
+        for raw in f:
+            line = raw.strip()
+            if not line or line.startswith(b"#"):
+                continue
+            try:
+                return np.array([float(v) for v in line.replace(b",", b" ").split()])
+            except ValueError:
+                continue  # a header line of names
+    raise InputError(f"{path}: the file holds no data rows.")
+
+
+def _iter_text_rows(
+    path: Path, ncols: int, block_bytes: int = _TEXT_BLOCK_BYTES
+) -> Iterator[np.ndarray]:
+    """Yield (n, ncols) float64 blocks of a whitespace- or comma-separated numeric text file."""
+    carry = b""
+    with open(path, "rb") as f:
+        while True:
+            block = f.read(block_bytes)
+            data = carry + block
+            if not block:
+                carry = b""
+            else:
+                cut = data.rfind(b"\n")
+                if cut < 0:
+                    carry = data
+                    continue
+                data, carry = data[: cut + 1], data[cut + 1 :]
+            if data.strip():
+                yield _parse_text_block(path, data, ncols)
+            if not block:
+                return
+
+
+def _parse_text_block(path: Path, data: bytes, ncols: int) -> np.ndarray:
+    text = data.decode("ascii", errors="replace").replace(",", " ")
+    if "#" in text or any(c.isalpha() and c not in "eE" for c in text[:200]):
+        # Rare: comments or a header line; drop non-numeric lines, then parse the rest in one go.
+        text = "\n".join(
+            ln
+            for ln in text.splitlines()
+            if ln.strip()
+            and not ln.lstrip().startswith("#")
+            and not any(c.isalpha() and c not in "eE" for c in ln)
+        )
+    values = np.array(text.split(), dtype=np.float64)
+    if values.size % ncols:
+        raise InputError(f"{path}: a line does not have {ncols} numbers; the file is malformed.")
+    return values.reshape(-1, ncols)
+
+
+def _events_from_rows(rows: np.ndarray, sensor: tuple[int, int], source: str) -> EventArray:
+    t_us = np.rint(rows[:, 0] * 1e6)
+    return EventArray.from_arrays(
+        rows[:, 1], rows[:, 2], t_us, rows[:, 3], sensor[0], sensor[1], source=source
+    )
+
+
+def _read_gyro_text(path: Path, kind: str) -> GyroTrace:
+    ncols = 7 if kind == "imu_txt" else 4
+    blocks = list(_iter_text_rows(path, ncols))
+    rows = np.concatenate(blocks) if blocks else np.zeros((0, ncols))
+    return GyroTrace.from_arrays(np.rint(rows[:, 0] * 1e6), rows[:, -3:], source=str(path))
+
+
+def read_gyro(path: str | os.PathLike) -> GyroTrace:
+    """Read angular velocity from a gyro/IMU text file or any file that carries ground truth."""
+    path = Path(path)
+    kind = detect_format(path)
+    if kind in ("imu_txt", "gyro_txt"):
+        return _read_gyro_text(path, kind)
+    rec = read_recording(path)
+    if rec.gyro is None:
+        raise InputError(f"{path}: the file holds no angular velocity (gyro) samples.")
+    return rec.gyro
+
+
+def _require_keys(f: h5py.File, keys: tuple[str, ...], path: Path) -> None:
+    missing = [k for k in keys if k not in f]
+    if missing:
+        raise InputError(
+            f"{path}: HDF5 file lacks dataset(s) {', '.join(missing)}; expected the official "
+            f"layout ({', '.join(OFFICIAL_KEYS)})."
+        )
+
+
+def _hdf5_sensor(f: h5py.File, sensor: tuple[int, int] | None) -> tuple[int, int]:
+    if sensor is not None:
+        return sensor
+    if "width" in f.attrs and "height" in f.attrs:
+        return int(f.attrs["width"]), int(f.attrs["height"])
+    return DEFAULT_SENSOR
+
+
+def _read_hdf5(path: Path, sensor: tuple[int, int] | None) -> Recording:
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise InputError(f"{path}: not a readable HDF5 file ({exc}).") from None
+    with f:
+        _require_keys(f, ("ev_xy", "ev_ts", "ev_pol"), path)
+        xy = f["ev_xy"][()]
+        if xy.ndim != 2 or xy.shape[1] != 2:
+            raise InputError(f"{path}: ev_xy has shape {xy.shape}; expected (N, 2).")
+        width, height = _hdf5_sensor(f, sensor)
+        events = EventArray.from_arrays(
+            xy[:, 0], xy[:, 1], f["ev_ts"][()], f["ev_pol"][()], width, height, source=str(path)
+        )
+        gyro = None
+        if "ang_xyz" in f or "ang_ts" in f:
+            _require_keys(f, ("ang_xyz", "ang_ts"), path)
+            gyro = GyroTrace.from_arrays(f["ang_ts"][()], f["ang_xyz"][()], source=str(path))
+        attrs = {k: _from_h5_attr(v) for k, v in f.attrs.items()}
+    return Recording(events=events, gyro=gyro, attrs=attrs)
+
+
+def _from_h5_attr(value: Any) -> Any:
+    if isinstance(value, bytes):
+        return value.decode()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _read_npz(path: Path, sensor: tuple[int, int] | None) -> Recording:
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: not a readable .npz file ({exc}).") from None
+    with data:
+        missing = [k for k in ("x", "y", "t", "p") if k not in data]
+        if missing:
+            raise InputError(f"{path}: .npz lacks array(s) {', '.join(missing)}; need x, y, t, p.")
+        width, height = sensor or (
+            (int(data["width"]), int(data["height"])) if "width" in data else DEFAULT_SENSOR
+        )
+        events = EventArray.from_arrays(
+            data["x"], data["y"], data["t"], data["p"], width, height, source=str(path)
+        )
+        gyro = None
+        if "gyro_t" in data:
+            gyro = GyroTrace.from_arrays(data["gyro_t"], data["gyro_omega"], source=str(path))
+        attrs = json.loads(str(data["attrs"])) if "attrs" in data else {}
+    return Recording(events=events, gyro=gyro, attrs=attrs)
+
+
+def read_recording(path: str | os.PathLike, *, sensor: tuple[int, int] | None = None) -> Recording:
+    """Read a whole event file (any supported format) into memory.
+
+    Args:
+        path: the file (or Event Camera Dataset folder).
+        sensor: (width, height) in pixels; overrides what the file says. Text formats carry no
+            sensor size and default to the DAVIS240's 240x180.
+    """
+    path = Path(path)
+    kind = detect_format(path)
+    if kind == "hdf5":
+        return _read_hdf5(path, sensor)
+    if kind == "npz":
+        return _read_npz(path, sensor)
+    if kind in ("imu_txt", "gyro_txt"):
+        raise InputError(f"{path}: this is a gyro/IMU file, not an event file.")
+    events_path = path / "events.txt" if kind == "ecd_dir" else path
+    parts = [
+        _events_from_rows(rows, sensor or DEFAULT_SENSOR, str(events_path))
+        for rows in _iter_text_rows(events_path, 4)
+    ]
+    events = (
+        EventArray.concatenate(parts) if parts else EventArray.empty(*(sensor or DEFAULT_SENSOR))
+    )
+    events.validate(str(events_path))
+    gyro = None
+    if kind == "ecd_dir":
+        for name, gkind in (("imu.txt", "imu_txt"), ("gyro.txt", "gyro_txt")):
+            if (path / name).exists():
+                gyro = _read_gyro_text(path / name, gkind)
+                break
+    return Recording(events=events, gyro=gyro)
+
+
+def iter_event_chunks(
+    path: str | os.PathLike,
+    *,
+    sensor: tuple[int, int] | None = None,
+    chunk_events: int = 1_000_000,
+) -> Iterator[EventArray]:
+    """Stream a file's events in time order, about ``chunk_events`` at a time, in bounded memory.
+
+    HDF5 and text files are read incrementally; ``.npz`` is loaded whole (it is not streamable).
+    Ordering across chunk boundaries is checked too.
+    """
+    path = Path(path)
+    kind = detect_format(path)
+    last_t = np.iinfo(np.int64).min
+
+    def checked(chunk: EventArray) -> EventArray:
+        nonlocal last_t
+        if len(chunk) and chunk.t[0] < last_t:
+            raise InputError(f"{path}: timestamps are not sorted; sort the events by time first.")
+        if len(chunk):
+            last_t = int(chunk.t[-1])
+        return chunk
+
+    if kind == "hdf5":
+        with h5py.File(path, "r") as f:
+            _require_keys(f, ("ev_xy", "ev_ts", "ev_pol"), path)
+            width, height = _hdf5_sensor(f, sensor)
+            n = f["ev_ts"].shape[0]
+            for i in range(0, n, chunk_events):
+                xy = f["ev_xy"][i : i + chunk_events]
+                yield checked(
+                    EventArray.from_arrays(
+                        xy[:, 0],
+                        xy[:, 1],
+                        f["ev_ts"][i : i + chunk_events],
+                        f["ev_pol"][i : i + chunk_events],
+                        width,
+                        height,
+                        source=str(path),
+                    )
+                )
+    elif kind in ("events_txt", "ecd_dir"):
+        events_path = path / "events.txt" if kind == "ecd_dir" else path
+        block = max(1 << 16, chunk_events * 32)
+        for rows in _iter_text_rows(events_path, 4, block_bytes=block):
+            yield checked(_events_from_rows(rows, sensor or DEFAULT_SENSOR, str(events_path)))
+    elif kind == "npz":
+        events = read_recording(path, sensor=sensor).events
+        for i in range(0, len(events), chunk_events):
+            yield events[i : i + chunk_events]
+    else:
+        raise InputError(f"{path}: this is a gyro/IMU file, not an event file.")
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` only if the block succeeds.
+
+    Readers therefore never see a half-written file, and an interrupted run leaves no debris.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp", dir=path.parent
+    )
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, path)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def _to_h5_attr(value: Any) -> Any:
+    if isinstance(value, dict):
+        return json.dumps(value)
+    return value
+
+
+def write_recording(
+    path: str | os.PathLike, rec: Recording, *, compression: str | None = None
+) -> Path:
+    """Write ``rec`` atomically; the format follows the extension (.h5/.hdf5, .npz, .txt, folder).
+
+    HDF5 files use the official layout (readable by the paper's loader) plus ``rec.attrs`` and the
+    sensor size as attributes. ``.txt`` writes events only (``t x y p``, seconds); a path without
+    a suffix becomes an Event Camera Dataset folder with ``events.txt`` and ``gyro.txt``.
+    """
+    path = Path(path)
+    ev = rec.events
+    suffix = path.suffix.lower()
+    if suffix in (".h5", ".hdf5"):
+        with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+            f.create_dataset("ev_xy", data=np.stack([ev.x, ev.y], axis=1), compression=compression)
+            f.create_dataset("ev_ts", data=ev.t, compression=compression)
+            f.create_dataset("ev_pol", data=ev.p, compression=compression)
+            if rec.gyro is not None:
+                f.create_dataset("ang_xyz", data=rec.gyro.omega)
+                f.create_dataset("ang_ts", data=rec.gyro.t)
+            for key, value in rec.attrs.items():
+                f.attrs[key] = _to_h5_attr(value)
+            f.attrs["width"] = ev.width
+            f.attrs["height"] = ev.height
+    elif suffix == ".npz":
+        arrays: dict[str, Any] = {
+            "x": ev.x,
+            "y": ev.y,
+            "t": ev.t,
+            "p": ev.p,
+            "width": ev.width,
+            "height": ev.height,
+            "attrs": json.dumps(rec.attrs),
+        }
+        if rec.gyro is not None:
+            arrays.update(gyro_t=rec.gyro.t, gyro_omega=rec.gyro.omega)
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.savez_compressed(f, **arrays)
+    elif suffix == ".txt":
+        _write_events_txt(path, ev)
+    elif suffix == "":
+        path.mkdir(parents=True, exist_ok=True)
+        _write_events_txt(path / "events.txt", ev)
+        if rec.gyro is not None:
+            write_gyro_txt(path / "gyro.txt", rec.gyro)
+    else:
+        raise InputError(f"{path}: cannot write '{suffix}'; use .h5, .npz, .txt or a folder.")
+    return path
+
+
+def _write_events_txt(path: Path, ev: EventArray) -> None:
+    table = np.column_stack([ev.t / 1e6, ev.x, ev.y, ev.p])
+    with atomic_path(path) as tmp:
+        np.savetxt(tmp, table, fmt=["%.6f", "%d", "%d", "%d"])
+
+
+def write_gyro_txt(path: str | os.PathLike, gyro: GyroTrace) -> None:
+    """Write ``t wx wy wz`` lines (seconds, rad/s) atomically."""
+    table = np.column_stack([gyro.t / 1e6, gyro.omega])
+    with atomic_path(path) as tmp:
+        np.savetxt(tmp, table, fmt=["%.6f", "%.9g", "%.9g", "%.9g"])

@@ -1,0 +1,1 @@
+"""Event-camera simulator (ESIM-style) and dataset generator."""

@@ -1,0 +1,1 @@
+"""SRM spiking neurons with SLAYER-style surrogate gradients."""

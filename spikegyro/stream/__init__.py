@@ -1,0 +1,1 @@
+"""Stateful, event-driven streaming inference for real-time prediction."""

@@ -1,0 +1,1 @@
+"""Dataset windows, augmentation, loss and the training loop."""
