@@ -1,0 +1,423 @@
+"""Dataset windows and how a window becomes a network input and a training target.
+
+A *window* is ``window_ms`` milliseconds of events cut from a sequence file (or from a freshly
+simulated sequence), with the ground-truth angular velocity at the end of every 1 ms bin: bin k
+covers ``[t_start + k ms, t_start + (k + 1) ms)`` and its label is ω(t_start + (k + 1) ms), as in
+the paper's official data loader.
+
+How a window is encoded depends on the checkpoint's ``input_spec`` dict (see
+:mod:`spikegyro.models.registry`), so training, evaluation and prediction share one code path:
+
+- ``"spikes"`` (SNN-6): a binary (2, H, W, T) spike tensor; the target is ω per step, (3, T).
+- ``"voxel"`` / ``"frames"`` (ANNs): one input per non-overlapping ``target_ms`` sub-window,
+  (S, C, H, W) with S = window_ms / target_ms; the target is the mean ω over each sub-window,
+  (S, 3). Predictions are held over their sub-window to compare per millisecond with the SNN.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from spikegyro.errors import InputError
+from spikegyro.events.core import EventArray, Recording
+from spikegyro.events.io import read_recording
+from spikegyro.events.representations import accumulated_frames, spike_tensor, voxel_grid
+
+BIN_US = 1000
+SPLITS = ("train", "val", "test")
+REPRESENTATIONS = ("spikes", "voxel", "frames")
+
+
+@dataclass(frozen=True)
+class Window:
+    """One fixed-length slice of a sequence with per-millisecond ground truth.
+
+    Attributes:
+        events: the events with ``t_start_us <= t < t_start_us + window_ms * 1000`` (absolute
+            timestamps, microseconds, as in the source file).
+        t_start_us: start of the window, microseconds.
+        omega: (T, 3) ground-truth angular velocity in rad/s at the end of each 1 ms bin,
+            i.e. at ``t_start_us + (k + 1) * 1000``.
+        omega_start: (3,) angular velocity at ``t_start_us`` itself, rad/s (time inversion
+            needs it: it becomes the label of the last bin).
+        source: the sequence file (or a description of a simulated sequence).
+        index: the window's position in its sequence (0..4 for the fixed test windows) or the
+            sample number for random training windows.
+    """
+
+    events: EventArray
+    t_start_us: int
+    omega: np.ndarray
+    omega_start: np.ndarray
+    source: str = ""
+    index: int = 0
+
+    @property
+    def num_steps(self) -> int:
+        """Number of 1 ms bins T."""
+        return int(self.omega.shape[0])
+
+    @property
+    def window_ms(self) -> int:
+        """Window length in milliseconds (= T)."""
+        return self.num_steps
+
+    @property
+    def t_end_us(self) -> int:
+        """End of the window (exclusive), microseconds."""
+        return self.t_start_us + self.num_steps * BIN_US
+
+
+@dataclass(frozen=True)
+class InputSpec:
+    """Typed view of a checkpoint's ``input`` dict.
+
+    Attributes:
+        representation: "spikes", "voxel" or "frames".
+        sensor: (width, height) in pixels of the events the model expects before scaling.
+        scale: factor applied to event coordinates before binning (0.5: 240x180 -> 120x90).
+        window_ms: window length, milliseconds.
+        output: "per_step" (ω every ms) or "window_mean" (mean ω per ``target_ms`` window).
+        num_bins: voxel-grid time bins (voxel only).
+        target_ms: length of the sub-windows an ANN predicts the mean over, milliseconds.
+    """
+
+    representation: str = "spikes"
+    sensor: tuple[int, int] = (240, 180)
+    scale: float = 1.0
+    window_ms: int = 100
+    output: str = "per_step"
+    num_bins: int = 5
+    target_ms: int = 20
+
+    def __post_init__(self) -> None:
+        if self.representation not in REPRESENTATIONS:
+            raise InputError(
+                f"input representation '{self.representation}': choose one of "
+                f"{', '.join(REPRESENTATIONS)}."
+            )
+        if self.output not in ("per_step", "window_mean"):
+            raise InputError(f"input output '{self.output}': use per_step or window_mean.")
+        if self.output == "window_mean" and self.window_ms % self.target_ms:
+            raise InputError(
+                f"window of {self.window_ms} ms is not a multiple of the {self.target_ms} ms "
+                "target windows; choose --target-ms dividing --window-ms."
+            )
+
+    @classmethod
+    def from_dict(cls, spec: dict[str, Any]) -> InputSpec:
+        known = {k: v for k, v in spec.items() if k in cls.__dataclass_fields__}
+        if "sensor" in known:
+            known["sensor"] = tuple(int(v) for v in known["sensor"])
+        return cls(**known)
+
+    @classmethod
+    def for_representation(
+        cls,
+        representation: str,
+        *,
+        sensor: tuple[int, int],
+        scale: float,
+        window_ms: int,
+        num_bins: int = 5,
+        target_ms: int = 20,
+    ) -> InputSpec:
+        """The spec a model of this input kind is trained with (SNN: per step, ANN: means)."""
+        output = "per_step" if representation == "spikes" else "window_mean"
+        return cls(representation, tuple(sensor), scale, window_ms, output, num_bins, target_ms)
+
+    def as_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["sensor"] = list(self.sensor)
+        return out
+
+    @property
+    def input_size(self) -> tuple[int, int]:
+        """(width, height) of the network input after scaling, pixels."""
+        return max(1, round(self.sensor[0] * self.scale)), max(
+            1, round(self.sensor[1] * self.scale)
+        )
+
+    @property
+    def in_channels(self) -> int:
+        """Input planes of an ANN for this representation."""
+        return {"spikes": 2, "voxel": self.num_bins, "frames": 2}[self.representation]
+
+    @property
+    def num_targets(self) -> int:
+        """Outputs per window: T steps, or S sub-window means."""
+        return self.window_ms if self.output == "per_step" else self.window_ms // self.target_ms
+
+
+def as_input_spec(spec: InputSpec | dict[str, Any]) -> InputSpec:
+    """Accept either the typed spec or the checkpoint's plain dict."""
+    return spec if isinstance(spec, InputSpec) else InputSpec.from_dict(spec)
+
+
+# ---------------------------------------------------------------------------------- windows
+
+
+def window_at(
+    rec: Recording, t_start_us: int, window_ms: int, *, source: str = "", index: int = 0
+) -> Window:
+    """Cut ``window_ms`` ms starting at ``t_start_us`` (µs) out of a recording with ground truth."""
+    if rec.gyro is None or len(rec.gyro) < 2:
+        raise InputError(f"{source}: the sequence has no ground-truth angular velocity.")
+    t_end_us = t_start_us + window_ms * BIN_US
+    ends = t_start_us + BIN_US * np.arange(1, window_ms + 1)
+    return Window(
+        events=rec.events.slice_time(t_start_us, t_end_us),
+        t_start_us=int(t_start_us),
+        omega=rec.gyro.interpolate(ends).astype(np.float32),
+        omega_start=rec.gyro.interpolate(np.array([t_start_us]))[0].astype(np.float32),
+        source=source,
+        index=index,
+    )
+
+
+def sequence_span_us(rec: Recording, source: str = "") -> tuple[int, int]:
+    """(first, last) ground-truth time of a sequence, microseconds: where windows may lie."""
+    if rec.gyro is None or len(rec.gyro) < 2:
+        raise InputError(f"{source}: the sequence has no ground-truth angular velocity (ang_xyz).")
+    return int(rec.gyro.t[0]), int(rec.gyro.t[-1])
+
+
+def sequence_windows(rec: Recording, window_ms: int, source: str = "") -> list[Window]:
+    """The non-overlapping windows tiling a sequence from its first ground-truth sample."""
+    t0, t1 = sequence_span_us(rec, source)
+    count = (t1 - t0) // (window_ms * BIN_US)
+    return [
+        window_at(rec, t0 + i * window_ms * BIN_US, window_ms, source=source, index=i)
+        for i in range(count)
+    ]
+
+
+def random_window(rec: Recording, window_ms: int, rng: np.random.Generator, **kw: Any) -> Window:
+    """A window starting at a uniformly random whole millisecond inside the sequence."""
+    t0, t1 = sequence_span_us(rec, kw.get("source", ""))
+    slots = (t1 - t0) // BIN_US - window_ms
+    if slots < 0:
+        raise InputError(
+            f"{kw.get('source', 'sequence')}: {(t1 - t0) / 1000:.0f} ms long, shorter than the "
+            f"{window_ms} ms window."
+        )
+    start = t0 + int(rng.integers(0, slots + 1)) * BIN_US
+    return window_at(rec, start, window_ms, **kw)
+
+
+def split_files(data_dir: str | Path, split: str) -> list[Path]:
+    """Sorted sequence files ``data_dir/split/*.h5``; InputError if there are none."""
+    if split not in SPLITS:
+        raise InputError(f"split '{split}': choose one of {', '.join(SPLITS)}.")
+    folder = Path(data_dir) / split
+    files = sorted(folder.glob("*.h5")) + sorted(folder.glob("*.hdf5"))
+    if not files:
+        raise InputError(
+            f"{folder}: no .h5 sequence files; create a dataset with `spikegyro simulate` "
+            "(layout DIR/{train,val,test}/seq_*.h5)."
+        )
+    return files
+
+
+@functools.lru_cache(maxsize=128)
+def load_sequence(path: str) -> Recording:
+    """Read a sequence file, memoised per process (DataLoader workers each keep their own)."""
+    return read_recording(path)
+
+
+def fixed_windows(data_dir: str | Path, split: str, window_ms: int = 100) -> list[Window]:
+    """The evaluation windows of a split: each sequence cut into non-overlapping windows.
+
+    A 500 ms sequence gives five 100 ms windows, as in the official test set.
+    """
+    windows: list[Window] = []
+    for path in split_files(data_dir, split):
+        windows.extend(sequence_windows(read_recording(path), window_ms, str(path)))
+    return windows
+
+
+# --------------------------------------------------------------------------------- encoding
+
+
+def _scaled_events(window: Window, spec: InputSpec) -> EventArray:
+    events = window.events
+    if (events.width, events.height) != tuple(spec.sensor):
+        raise InputError(
+            f"{window.source}: events from a {events.width}x{events.height} sensor, but the model "
+            f"expects {spec.sensor[0]}x{spec.sensor[1]}; rescale or crop the events first."
+        )
+    return events if spec.scale == 1.0 else events.rescale(spec.scale)
+
+
+def encode_window(window: Window, input_spec: InputSpec | dict[str, Any]) -> torch.Tensor:
+    """The network input for one window (float32, CPU).
+
+    Returns:
+        spikes: (2, H, W, T) binary spike tensor (channel 0 OFF, 1 ON).
+        voxel: (S, num_bins, H, W), one voxel grid per ``target_ms`` sub-window.
+        frames: (S, 2, H, W), accumulated-event frames per sub-window.
+    """
+    spec = as_input_spec(input_spec)
+    if window.num_steps != spec.window_ms:
+        raise InputError(
+            f"{window.source}: a {window.num_steps} ms window, but the model takes "
+            f"{spec.window_ms} ms windows."
+        )
+    ev = _scaled_events(window, spec)
+    width, height = ev.width, ev.height
+    if spec.representation == "spikes":
+        return torch.from_numpy(
+            spike_tensor(
+                ev.x, ev.y, ev.t, ev.p, height=height, width=width,
+                t_start_us=window.t_start_us, num_bins=window.num_steps,
+            )
+        )  # fmt: skip
+    sub_us = spec.target_ms * BIN_US
+    planes = []
+    for j in range(spec.window_ms // spec.target_ms):
+        a = window.t_start_us + j * sub_us
+        sub = ev.slice_time(a, a + sub_us)
+        if spec.representation == "voxel":
+            plane = voxel_grid(
+                sub.x, sub.y, sub.t, sub.p, height=height, width=width,
+                num_bins=spec.num_bins, t_start_us=a, t_end_us=a + sub_us,
+            )  # fmt: skip
+        else:
+            plane = accumulated_frames(sub.x, sub.y, sub.p, height=height, width=width)
+        planes.append(torch.from_numpy(plane))
+    return torch.stack(planes)
+
+
+def encode_target(window: Window, input_spec: InputSpec | dict[str, Any]) -> torch.Tensor:
+    """The training target for one window, rad/s (float32).
+
+    Returns:
+        per_step: (3, T), the layout of the SNN's output.
+        window_mean: (S, 3), the mean of the per-millisecond labels in each sub-window.
+    """
+    spec = as_input_spec(input_spec)
+    omega = torch.from_numpy(np.ascontiguousarray(window.omega, dtype=np.float32))
+    if spec.output == "per_step":
+        return omega.T.contiguous()
+    return omega.view(-1, spec.target_ms, 3).mean(dim=1)
+
+
+# ------------------------------------------------------------------------- training samples
+
+
+class WindowSource(Protocol):
+    """Where training windows come from: ``draw(rng, index) -> Window``."""
+
+    def draw(self, rng: np.random.Generator, index: int) -> Window: ...
+
+
+@dataclass(frozen=True)
+class FileSource:
+    """Random windows from sequence files (a uniformly random file, then a random start)."""
+
+    files: tuple[str, ...]
+    window_ms: int
+
+    @classmethod
+    def from_split(cls, data_dir: str | Path, split: str, window_ms: int) -> FileSource:
+        return cls(tuple(str(p) for p in split_files(data_dir, split)), window_ms)
+
+    def draw(self, rng: np.random.Generator, index: int) -> Window:
+        path = self.files[int(rng.integers(len(self.files)))]
+        return random_window(load_sequence(path), self.window_ms, rng, source=path, index=index)
+
+
+@dataclass(frozen=True)
+class OnlineSource:
+    """Windows from sequences simulated on the fly: sample ``i`` is sequence ``offset + i``.
+
+    ``simulate(index) -> Recording`` must be a picklable callable (DataLoader workers call it);
+    nothing touches the disk, so the data are unlimited.
+    """
+
+    simulate: Callable[[int], Recording]
+    window_ms: int
+    offset: int = 0
+
+    def draw(self, rng: np.random.Generator, index: int) -> Window:
+        rec = self.simulate(self.offset + index)
+        return random_window(rec, self.window_ms, rng, source=f"online:{self.offset + index}",
+                             index=index)  # fmt: skip
+
+
+Augment = Callable[[Window, np.random.Generator], Window]
+
+
+class TrainingSamples(Dataset):
+    """Map-style dataset over an endless stream of random training samples.
+
+    Sample ``i`` is a pure function of (seed, i): its randomness comes from
+    ``np.random.default_rng([seed, i])``. Training step s of a run with global batch B reads
+    samples ``s*B .. s*B + B - 1`` whatever the number of processes or workers, so resumed and
+    distributed runs see exactly the data a single uninterrupted run sees.
+    """
+
+    def __init__(
+        self,
+        source: WindowSource,
+        input_spec: InputSpec | dict[str, Any],
+        *,
+        seed: int = 0,
+        augment: Augment | None = None,
+        length: int = 2**62,
+    ) -> None:
+        self.source = source
+        self.spec = as_input_spec(input_spec)
+        self.seed = seed
+        self.augment = augment
+        self.length = length
+
+    def __len__(self) -> int:
+        return self.length
+
+    def window(self, index: int) -> Window:
+        """The (augmented) window of sample ``index``."""
+        rng = np.random.default_rng([self.seed, index])
+        window = self.source.draw(rng, index)
+        return window if self.augment is None else self.augment(window, rng)
+
+    def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
+        window = self.window(index)
+        return encode_window(window, self.spec), encode_target(window, self.spec)
+
+
+class WindowList(Dataset):
+    """Fixed windows (validation/test) as (input, target) pairs."""
+
+    def __init__(self, windows: list[Window], input_spec: InputSpec | dict[str, Any]) -> None:
+        self.windows = windows
+        self.spec = as_input_spec(input_spec)
+
+    def __len__(self) -> int:
+        return len(self.windows)
+
+    def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
+        w = self.windows[index]
+        return encode_window(w, self.spec), encode_target(w, self.spec)
+
+
+def model_batch(
+    inputs: torch.Tensor, targets: torch.Tensor | None, input_spec: InputSpec | dict[str, Any]
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Shape a stacked batch for the model: ANN sub-windows become batch entries.
+
+    spikes: (N, 2, H, W, T) and (N, 3, T) unchanged; voxel/frames: (N, S, C, H, W) ->
+    (N*S, C, H, W) and (N, S, 3) -> (N*S, 3).
+    """
+    if as_input_spec(input_spec).output == "per_step":
+        return inputs, targets
+    flat = inputs.flatten(0, 1)
+    return flat, None if targets is None else targets.flatten(0, 1)
