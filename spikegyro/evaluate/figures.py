@@ -1,0 +1,146 @@
+"""Figures drawn from metric results (not from raw predictions), so `report` can redraw any run.
+
+Each model keeps one color in every figure (:func:`model_color`, a fixed palette keyed by the
+model's display name); each axis keeps one color too (:data:`AXIS_COLORS`). Figures are built on
+``matplotlib.figure.Figure`` directly (no pyplot global state) and saved as PNG without metadata,
+so the same results give the same bytes.
+"""
+
+from __future__ import annotations
+
+import os
+import zlib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+
+from spikegyro.evaluate.metrics import AXES
+from spikegyro.events.io import atomic_path
+
+# Okabe-Ito colors (distinguishable with the common color-vision deficiencies).
+MODEL_COLORS: dict[str, str] = {
+    "SNN-6": "#D55E00",
+    "SNN-6 (official)": "#CC79A7",
+    "ANN-6": "#0072B2",
+    "ResNet-50 (A)": "#56B4E9",
+    "ResNet-50 (V)": "#009E73",
+    "CMax": "#E69F00",
+    "Mean": "#7F7F7F",
+}
+_EXTRA_COLORS = ("#000000", "#8C564B", "#BCBD22", "#17BECF", "#9467BD", "#F0E442")
+
+AXIS_COLORS: dict[str, str] = {"tilt": "#1F77B4", "pan": "#2CA02C", "roll": "#D62728"}
+AXIS_SYMBOLS = {"tilt": "ω_x", "pan": "ω_y", "roll": "ω_z"}
+
+DPI = 120
+
+
+def model_color(name: str) -> str:
+    """The fixed color of model ``name``; unknown names get a stable color from their hash."""
+    if name in MODEL_COLORS:
+        return MODEL_COLORS[name]
+    return _EXTRA_COLORS[zlib.crc32(name.encode()) % len(_EXTRA_COLORS)]
+
+
+def save_figure(fig: Figure, path: str | os.PathLike) -> Path:
+    """Write ``fig`` as a metadata-free PNG atomically; returns the path."""
+    path = Path(path)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=DPI, format="png", metadata={"Software": None})
+    return path
+
+
+def median_relative_error_per_bin(
+    per_bin_by_model: Mapping[str, Sequence[Mapping[str, Any]]],
+    title: str = "Median relative error per speed bin",
+) -> Figure:
+    """Grouped bars: the median relative error of each model in each speed bin (paper Fig. 4).
+
+    Args:
+        per_bin_by_model: model name -> the list from
+            :func:`spikegyro.evaluate.bins.per_bin_metrics` (all with the same bins).
+    """
+    names = list(per_bin_by_model)
+    first = per_bin_by_model[names[0]]
+    labels = [b["label"] for b in first]
+    fig = Figure(figsize=(min(12.0, 4.0 + len(labels) * (0.5 + 0.2 * len(names))), 4.4))
+    ax = fig.add_subplot()
+    width = 0.8 / len(names)
+    x = np.arange(len(labels))
+    top = 0.0
+    for j, name in enumerate(names):
+        values = [b.get("median_relative_error") for b in per_bin_by_model[name]]
+        heights = [np.nan if v is None else v for v in values]
+        top = max(top, np.nanmax(heights) if not np.all(np.isnan(heights)) else 0.0)
+        ax.bar(
+            x - 0.4 + width * (j + 0.5),
+            heights,
+            width,
+            label=name,
+            color=model_color(name),
+            edgecolor="black",
+            linewidth=0.5,
+        )
+    for i, b in enumerate(first):
+        if b["n_pairs"] == 0:
+            ax.text(x[i], 0.02, "no data", ha="center", va="bottom", fontsize=8, rotation=90)
+    ax.set_xticks(x, [f"{lab}\nn={b['n_pairs']:,}" for lab, b in zip(labels, first, strict=True)])
+    ax.set_xlabel("true angular speed ‖ω̂‖ [deg/s]  (n = evaluated 1 ms steps)")
+    ax.set_ylabel("median relative error ‖ω − ω̂‖ / ‖ω̂‖ [-]")
+    ax.set_ylim(0, max(top * 1.15, 0.1))
+    ax.set_title(title)
+    ax.grid(axis="y", alpha=0.3)
+    ax.set_axisbelow(True)
+    ax.legend(fontsize=8, ncol=min(len(names), 4), loc="upper right")
+    fig.tight_layout()
+    return fig
+
+
+def axis_relative_error_boxes(per_bin: Sequence[Mapping[str, Any]], model_name: str) -> Figure:
+    """Box plots of the signed per-axis relative error per speed bin (paper Fig. 5).
+
+    Boxes span the quartiles, whiskers reach the furthest value within 1.5 IQR; outliers are not
+    drawn. Reads the box statistics stored by :func:`spikegyro.evaluate.bins.per_bin_metrics`.
+    """
+    fig = Figure(figsize=(max(7.0, 1.3 * len(per_bin)), 4.4))
+    ax = fig.add_subplot()
+    width = 0.25
+    lows, highs = [], []
+    for i, b in enumerate(per_bin):
+        for j, axis in enumerate(AXES):
+            stats = b.get("per_axis", {}).get(axis, {}).get("relative_error", {"n": 0})
+            if stats["n"] == 0:
+                continue
+            lows.append(stats["whislo"])
+            highs.append(stats["whishi"])
+            ax.bxp(
+                [stats],
+                positions=[i + (j - 1) * (width + 0.03)],
+                widths=width,
+                showfliers=False,
+                patch_artist=True,
+                boxprops={"facecolor": AXIS_COLORS[axis], "alpha": 0.8},
+                medianprops={"color": "black"},
+            )
+        if b["n_pairs"] == 0:
+            ax.text(i, 0, "no data", ha="center", va="center", fontsize=8, rotation=90)
+    ax.axhline(0.0, color="black", linewidth=0.8, linestyle=":")
+    ax.set_xticks(range(len(per_bin)), [f"{b['label']}\nn={b['n_pairs']:,}" for b in per_bin])
+    ax.set_xlim(-0.6, len(per_bin) - 0.4)
+    if lows:
+        span = max(abs(min(lows)), abs(max(highs)), 0.05) * 1.1
+        ax.set_ylim(-span, span)
+    ax.set_xlabel("true angular speed ‖ω̂‖ [deg/s]  (n = evaluated 1 ms steps)")
+    ax.set_ylabel("signed relative error (ω_i − ω̂_i) / |ω̂_i| [-]")
+    ax.set_title(f"{model_name}: per-axis relative error per speed bin")
+    ax.grid(axis="y", alpha=0.3)
+    handles = [
+        Patch(facecolor=AXIS_COLORS[a], alpha=0.8, label=f"{a} ({AXIS_SYMBOLS[a]})") for a in AXES
+    ]
+    ax.legend(handles=handles, fontsize=8, loc="upper right")
+    fig.tight_layout()
+    return fig
