@@ -1,0 +1,143 @@
+"""Angular-velocity prediction files: CSV or HDF5 (by extension), written in blocks, atomically.
+
+Columns / datasets (angular velocity in rad/s, camera frame):
+
+- CSV: header ``t,wx,wy,wz`` (t in seconds, microsecond precision); with a gyro reference also
+  ``gyro_wx,gyro_wy,gyro_wz,err`` where ``err`` is the Euclidean error in rad/s.
+- HDF5: ``t_us`` (K,) int64 microseconds, ``omega`` (K, 3) float32 rad/s; with a gyro reference
+  also ``gyro_omega`` (K, 3). The layout mirrors the official ``ang_ts`` / ``ang_xyz`` pair.
+
+A CSV prediction file reads back with :func:`spikegyro.events.io.read_gyro`.
+"""
+
+from __future__ import annotations
+
+import os
+from contextlib import ExitStack
+from pathlib import Path
+from types import TracebackType
+
+import h5py
+import numpy as np
+
+from spikegyro.errors import InputError
+from spikegyro.events.io import atomic_path
+
+_CSV_SUFFIXES = (".csv", ".txt")
+_H5_SUFFIXES = (".h5", ".hdf5")
+
+
+def check_prediction_path(path: str | os.PathLike) -> Path:
+    """Raise :class:`InputError` unless ``path`` has a supported extension (.csv/.txt/.h5/.hdf5)."""
+    path = Path(path)
+    if path.suffix.lower() not in _CSV_SUFFIXES + _H5_SUFFIXES:
+        raise InputError(
+            f"{path}: unknown prediction format '{path.suffix}'; use .csv (or .txt) or .h5."
+        )
+    return path
+
+
+class PredictionWriter:
+    """Append predictions block by block; the file appears (atomically) only on a clean close.
+
+    Use as a context manager::
+
+        with PredictionWriter("pred.csv", with_gyro=True) as w:
+            w.append(t_us, omega, gyro_omega)
+    """
+
+    def __init__(self, path: str | os.PathLike, *, with_gyro: bool = False) -> None:
+        self.path = check_prediction_path(path)
+        self.with_gyro = with_gyro
+        self.rows = 0
+        self._stack = ExitStack()
+        self._csv = None
+        self._h5: h5py.File | None = None
+
+    def __enter__(self) -> PredictionWriter:
+        tmp = self._stack.enter_context(atomic_path(self.path))
+        if self.path.suffix.lower() in _H5_SUFFIXES:
+            self._h5 = self._stack.enter_context(h5py.File(tmp, "w"))
+            self._h5.create_dataset(
+                "t_us", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(65536,)
+            )
+            for name in ("omega", "gyro_omega") if self.with_gyro else ("omega",):
+                self._h5.create_dataset(
+                    name, shape=(0, 3), maxshape=(None, 3), dtype=np.float32, chunks=(65536, 3)
+                )
+            self._h5["omega"].attrs["units"] = "rad/s"
+            self._h5["t_us"].attrs["units"] = "us"
+        else:
+            self._csv = self._stack.enter_context(open(tmp, "w", newline=""))
+            header = "t,wx,wy,wz" + (",gyro_wx,gyro_wy,gyro_wz,err" if self.with_gyro else "")
+            self._csv.write(header + "\n")
+        return self
+
+    def append(
+        self, t_us: np.ndarray, omega: np.ndarray, gyro_omega: np.ndarray | None = None
+    ) -> None:
+        """Add rows: times (µs), predicted ω (K, 3) rad/s and, if enabled, the gyro's ω (K, 3)."""
+        t_us = np.asarray(t_us, dtype=np.int64)
+        omega = np.asarray(omega, dtype=np.float64).reshape(-1, 3)
+        if self.with_gyro != (gyro_omega is not None):
+            raise ValueError("gyro_omega must be given exactly when the writer has with_gyro")
+        if self._h5 is not None:
+            blocks = {"t_us": t_us, "omega": omega}
+            if gyro_omega is not None:
+                blocks["gyro_omega"] = gyro_omega
+            for name, block in blocks.items():
+                ds = self._h5[name]
+                ds.resize(self.rows + len(t_us), axis=0)
+                ds[self.rows :] = block
+        else:
+            columns = [t_us[:, None] / 1e6, omega]
+            fmt = ["%.6f", "%.7g", "%.7g", "%.7g"]
+            if gyro_omega is not None:
+                gyro_omega = np.asarray(gyro_omega, dtype=np.float64).reshape(-1, 3)
+                err = np.linalg.norm(omega - gyro_omega, axis=1)
+                columns += [gyro_omega, err[:, None]]
+                fmt += ["%.7g"] * 4
+            np.savetxt(self._csv, np.hstack(columns), fmt=fmt, delimiter=",")
+        self.rows += len(t_us)
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self._stack.__exit__(exc_type, exc, tb)
+
+
+def write_predictions(
+    path: str | os.PathLike,
+    t_us: np.ndarray,
+    omega: np.ndarray,
+    gyro: np.ndarray | None = None,
+) -> Path:
+    """Write a whole prediction series at once (CSV or HDF5 by extension, atomically).
+
+    Args:
+        path: output file, ``.csv``/``.txt`` or ``.h5``/``.hdf5``.
+        t_us: (K,) prediction times, microseconds.
+        omega: (K, 3) predicted angular velocity, rad/s.
+        gyro: optional (K, 3) reference angular velocity at the same times, rad/s.
+    """
+    with PredictionWriter(path, with_gyro=gyro is not None) as writer:
+        writer.append(t_us, omega, gyro)
+    return writer.path
+
+
+def read_predictions(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read a prediction file back: ``t_us``, ``omega`` and, when present, ``gyro_omega``."""
+    path = check_prediction_path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such prediction file.")
+    if path.suffix.lower() in _H5_SUFFIXES:
+        with h5py.File(path, "r") as f:
+            return {k: f[k][()] for k in ("t_us", "omega", "gyro_omega") if k in f}
+    table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    out = {"t_us": np.rint(table[:, 0] * 1e6).astype(np.int64), "omega": table[:, 1:4]}
+    if table.shape[1] >= 7:
+        out["gyro_omega"] = table[:, 4:7]
+    return out
