@@ -1,0 +1,532 @@
+"""The training loop: data, optimizer, validation, checkpoints, logs, resume and DDP.
+
+A run directory holds ``config.json`` (the resolved :class:`TrainConfig`), ``log.csv`` (one row
+per ``log_every`` steps: step, loss, lr, validation metrics, time), ``last.pt`` and ``best.pt``
+(:func:`spikegyro.models.registry.save_checkpoint`; best = lowest validation median relative
+error), ``resume.pt`` (optimizer, scheduler, step, RNG states) and ``loss.png`` at the end.
+
+Data are indexed by sample number (see :class:`~spikegyro.train.data.TrainingSamples`): step s
+reads samples ``s*B .. s*B+B-1`` and process r of K takes its slice ``r*B/K ..`` of them, so a
+resumed or distributed run sees the same batches as one uninterrupted single-process run.
+"""
+
+from __future__ import annotations
+
+import csv
+import functools
+import math
+import random
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn.parallel import DistributedDataParallel
+from torch.utils.data import DataLoader, Sampler
+
+from spikegyro.errors import InputError
+from spikegyro.events.io import atomic_path
+from spikegyro.models.registry import build_model, save_checkpoint
+from spikegyro.train import distributed
+from spikegyro.train.augment import AugmentConfig
+from spikegyro.train.data import (
+    FileSource,
+    InputSpec,
+    OnlineSource,
+    TrainingSamples,
+    Window,
+    fixed_windows,
+    model_batch,
+    sequence_windows,
+)
+from spikegyro.train.infer import predict_windows
+from spikegyro.train.loss import angular_velocity_loss
+from spikegyro.train.presets import TrainConfig, load_config
+
+LOG_FIELDS = (
+    "step",
+    "loss",
+    "lr",
+    "val_loss",
+    "val_median_rel",
+    "val_mean_err_deg",
+    "elapsed_s",
+    "samples_per_s",
+)
+RESUME_FILE = "resume.pt"
+
+
+@dataclass
+class TrainResult:
+    """What a run produced (returned on every process; files are written by rank 0)."""
+
+    run_dir: Path
+    steps: int
+    elapsed_s: float
+    last_loss: float
+    best_val_median_rel: float
+    val: dict[str, float] = field(default_factory=dict)
+    stopped_early: bool = False
+
+
+# ------------------------------------------------------------------------------ components
+
+
+def input_spec_of(config: TrainConfig) -> InputSpec:
+    return InputSpec.for_representation(
+        config.input,
+        sensor=config.sensor,
+        scale=config.scale,
+        window_ms=config.window_ms,
+        num_bins=config.num_bins,
+        target_ms=config.target_ms,
+    )
+
+
+def model_kwargs_of(config: TrainConfig, spec: InputSpec) -> dict[str, Any]:
+    """Constructor arguments: ANNs need their input planes; the rest comes from the config."""
+    kwargs = dict(config.model_kwargs or {})
+    if spec.output == "window_mean":
+        kwargs.setdefault("in_channels", spec.in_channels)
+    return kwargs
+
+
+def online_simulator(config: TrainConfig) -> functools.partial:
+    """``index -> Recording`` for online mode (a picklable partial of ``simulate_sequence``)."""
+    from spikegyro.sim import SimConfig, simulate_sequence  # the simulator is only needed here
+
+    sim = dict(config.sim or {})
+    sim.setdefault("width", config.sensor[0])
+    sim.setdefault("height", config.sensor[1])
+    try:
+        sim_config = SimConfig(**sim)
+    except TypeError as exc:
+        raise InputError(f"--sim {sim}: not a valid simulator configuration ({exc}).") from None
+    return functools.partial(simulate_sequence, sim_config, seed=config.seed)
+
+
+def training_samples(config: TrainConfig, spec: InputSpec) -> TrainingSamples:
+    if config.online:
+        source = OnlineSource(online_simulator(config), config.window_ms)
+    else:
+        source = FileSource.from_split(config.data, "train", config.window_ms)
+    augment = AugmentConfig(config.hflip, config.vflip, config.time_reverse)
+    return TrainingSamples(
+        source, spec, seed=config.seed, augment=augment if augment.enabled else None
+    )
+
+
+def validation_windows(config: TrainConfig) -> list[Window]:
+    """Fixed validation windows: the ``val`` split, or simulated sequences in online mode."""
+    if config.data:
+        windows = fixed_windows(config.data, "val", config.window_ms)
+    else:
+        simulate = online_simulator(config)
+        # indices far beyond any training sample index, so validation never overlaps training
+        windows = [
+            w
+            for i in range(config.val_sequences)
+            for w in sequence_windows(simulate(10**12 + i), config.window_ms, f"val:{i}")
+        ]
+    if config.val_windows and len(windows) > config.val_windows:
+        # an even spread over sequences and positions, the same every time
+        pick = np.linspace(0, len(windows) - 1, config.val_windows).round().astype(int)
+        windows = [windows[i] for i in pick]
+    return windows
+
+
+class StepSampler(Sampler[int]):
+    """Sample indices of steps ``start .. stop-1`` for one process (see the module docstring)."""
+
+    def __init__(self, start: int, stop: int, global_batch: int, rank: int, world: int) -> None:
+        self.start, self.stop = start, stop
+        self.local = global_batch // world
+        self.global_batch = global_batch
+        self.rank = rank
+
+    def __iter__(self) -> Iterator[int]:
+        for step in range(self.start, self.stop):
+            base = step * self.global_batch + self.rank * self.local
+            yield from range(base, base + self.local)
+
+    def __len__(self) -> int:
+        return (self.stop - self.start) * self.local
+
+
+def _worker_init(_: int) -> None:
+    torch.set_num_threads(1)  # workers encode events; the main process owns the cores
+
+
+def lr_factor(step: int, config: TrainConfig) -> float:
+    """Multiplier of the base learning rate at ``step``: linear warm-up, then flat or cosine."""
+    if config.warmup_steps and step < config.warmup_steps:
+        return (step + 1) / config.warmup_steps
+    if config.lr_schedule == "constant":
+        return 1.0
+    span = max(1, config.iterations - config.warmup_steps)
+    progress = min(1.0, (step - config.warmup_steps) / span)
+    low = config.lr_min_factor
+    return low + (1 - low) * 0.5 * (1 + math.cos(math.pi * progress))
+
+
+def validation_metrics(
+    prediction: np.ndarray, truth: np.ndarray, start_step: int
+) -> dict[str, float]:
+    """Loss and the paper's headline numbers on (n, T, 3) rad/s arrays, steps >= start_step.
+
+    ``val_median_rel`` is the median of ‖ω − ω̂‖/‖ω̂‖ over (window, step) pairs with
+    ‖ω̂‖ >= 1 deg/s; ``val_mean_err_deg`` the mean Euclidean error in deg/s (the paper's "RMSE").
+    """
+    err = np.linalg.norm(prediction - truth, axis=-1)[:, start_step:]
+    norm = np.linalg.norm(truth, axis=-1)[:, start_step:]
+    valid = norm >= np.radians(1.0)
+    rel = err[valid] / norm[valid]
+    return {
+        "val_loss": float(err.mean()),
+        "val_median_rel": float(np.median(rel)) if rel.size else float("nan"),
+        "val_mean_err_deg": float(np.degrees(err.mean())),
+    }
+
+
+def validate(
+    model: nn.Module, spec: InputSpec, windows: list[Window], config: TrainConfig, device
+) -> dict[str, float]:
+    was_training = model.training
+    prediction = predict_windows(model, spec, windows, batch_size=config.batch_size, device=device)
+    model.train(was_training)
+    truth = np.stack([w.omega for w in windows])
+    return validation_metrics(prediction, truth, config.loss_start_step)
+
+
+def seed_everything(seed: int) -> None:
+    """Seed the global generators (model init); samples use their own per-index generators."""
+    random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def rng_states() -> dict[str, Any]:
+    return {
+        "python": random.getstate(),
+        "torch": torch.get_rng_state(),
+        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
+    }
+
+
+def set_rng_states(states: dict[str, Any]) -> None:
+    random.setstate(states["python"])
+    torch.set_rng_state(states["torch"])
+    if states.get("cuda") and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(states["cuda"])
+
+
+# ------------------------------------------------------------------------------- run files
+
+
+class RunFiles:
+    """Paths and writers of a run directory (used by rank 0 only)."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.dir = run_dir
+        self.config = run_dir / "config.json"
+        self.log = run_dir / "log.csv"
+        self.last = run_dir / "last.pt"
+        self.best = run_dir / "best.pt"
+        self.resume = run_dir / RESUME_FILE
+        self.curve = run_dir / "loss.png"
+
+    def write_config(self, config: TrainConfig) -> None:
+        self.dir.mkdir(parents=True, exist_ok=True)
+        with atomic_path(self.config) as tmp:
+            tmp.write_text(config.to_json() + "\n")
+
+    def start_log(self, keep_until_step: int) -> None:
+        """Create the log, or on resume drop rows logged after the checkpoint being resumed."""
+        rows = []
+        if self.log.exists() and keep_until_step > 0:
+            with open(self.log, newline="") as f:
+                rows = [r for r in csv.DictReader(f) if int(r["step"]) <= keep_until_step]
+        with atomic_path(self.log) as tmp, open(tmp, "w", newline="") as f:
+            writer = csv.DictWriter(f, LOG_FIELDS)
+            writer.writeheader()
+            writer.writerows(rows)
+
+    def append_log(self, row: dict[str, Any]) -> None:
+        with open(self.log, "a", newline="") as f:
+            csv.DictWriter(f, LOG_FIELDS).writerow({k: row.get(k, "") for k in LOG_FIELDS})
+
+    def plot_curve(self) -> None:
+        """loss.png: training loss and validation loss (rad/s) against the step."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        with open(self.log, newline="") as f:
+            rows = list(csv.DictReader(f))
+        if not rows:
+            return
+        fig, ax = plt.subplots(figsize=(6, 3.5))
+        train = [(int(r["step"]), float(r["loss"])) for r in rows if r["loss"]]
+        val = [(int(r["step"]), float(r["val_loss"])) for r in rows if r["val_loss"]]
+        if train:
+            ax.plot(*zip(*train, strict=True), label="training loss", lw=1)
+        if val:
+            ax.plot(*zip(*val, strict=True), "o-", label="validation loss", lw=1.5)
+        ax.set_xlabel("step")
+        ax.set_ylabel("mean Euclidean error (rad/s)")
+        ax.grid(alpha=0.3)
+        ax.legend()
+        fig.tight_layout()
+        with atomic_path(self.curve) as tmp:
+            fig.savefig(tmp, dpi=120, format="png")
+        plt.close(fig)
+
+
+def resume_config(run_dir: Path, overrides: dict[str, Any] | None = None) -> TrainConfig:
+    """The saved configuration of a run, with ``overrides`` (e.g. more iterations) applied."""
+    path = run_dir / "config.json"
+    if not path.exists():
+        raise InputError(f"{run_dir}: no config.json; is this a training run directory?")
+    data = load_config(path.read_text()).as_dict()
+    data.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    data["sensor"] = tuple(data["sensor"])
+    return TrainConfig(**data)
+
+
+# ------------------------------------------------------------------------------------ loop
+
+
+def train(config: TrainConfig, *, resume: bool = False, progress: bool = True) -> TrainResult:
+    """Train a model as ``config`` says; under torchrun every process calls this.
+
+    Args:
+        config: the resolved configuration (``config.out`` is the run directory).
+        resume: continue from ``out/last.pt`` + ``out/resume.pt`` (must exist).
+        progress: show a progress bar on rank 0.
+    """
+    if not config.out:
+        raise InputError("train: give a run directory (--out DIR).")
+    ctx = distributed.init_distributed(config.device)
+    try:
+        return _train(config, ctx, resume=resume, progress=progress)
+    finally:
+        distributed.shutdown(ctx)
+
+
+def _train(
+    config: TrainConfig, ctx: distributed.DistContext, *, resume: bool, progress: bool
+) -> TrainResult:
+    if config.batch_size % ctx.world_size:
+        raise InputError(
+            f"--batch-size {config.batch_size} is not divisible by the {ctx.world_size} "
+            "processes; each process takes an equal share of the batch."
+        )
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    files = RunFiles(Path(config.out))
+    spec = input_spec_of(config)
+    kwargs = model_kwargs_of(config, spec)
+    seed_everything(config.seed)
+    model = build_model(config.model, **kwargs).to(ctx.device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: lr_factor(s, config))
+
+    start_step, best, elapsed0 = 0, math.inf, 0.0
+    if resume:
+        start_step, best, elapsed0 = _load_resume(files, model, optimizer, scheduler, ctx)
+    net: nn.Module = model
+    if ctx.distributed:
+        ids = [ctx.device.index] if ctx.device.type == "cuda" else None
+        net = DistributedDataParallel(model, device_ids=ids)
+
+    samples = training_samples(config, spec)
+    val_windows = validation_windows(config) if ctx.is_main else []
+    if ctx.is_main:
+        files.write_config(config)
+        files.start_log(start_step)
+    writer = _tensorboard(files.dir) if config.tensorboard and ctx.is_main else None
+
+    loader = DataLoader(
+        samples,
+        batch_size=config.batch_size // ctx.world_size,
+        sampler=StepSampler(
+            start_step, config.iterations, config.batch_size, ctx.rank, ctx.world_size
+        ),
+        num_workers=config.num_workers,
+        worker_init_fn=_worker_init if config.num_workers else None,
+        persistent_workers=False,
+        pin_memory=ctx.device.type == "cuda",
+    )
+    bar = _ProgressBar(config, start_step, enabled=progress and ctx.is_main)
+    t0 = time.monotonic() - elapsed0
+    step, loss_sum, loss_n, last_loss, val = start_step, 0.0, 0, math.nan, {}
+    stopped_early = False
+    net.train()
+    with bar:
+        for inputs, targets in loader:
+            x, y = model_batch(inputs, targets, spec)
+            x = x.to(ctx.device, non_blocking=True)
+            y = y.to(ctx.device, non_blocking=True)
+            loss = angular_velocity_loss(net(x), y, config.loss_start_step)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            if config.grad_clip > 0:
+                nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
+            optimizer.step()
+            scheduler.step()
+            step += 1
+            loss_sum += float(loss.detach())
+            loss_n += 1
+            over_time = config.max_minutes > 0 and time.monotonic() - t0 > 60 * config.max_minutes
+            stop = distributed.agree(over_time, ctx)
+            final = stop or step == config.iterations
+            row: dict[str, Any] = {}
+            if step % config.log_every == 0 or final:
+                last_loss = distributed.mean_across(loss_sum / loss_n, ctx)
+                loss_sum, loss_n = 0.0, 0
+                elapsed = time.monotonic() - t0
+                row = {
+                    "step": step,
+                    "loss": f"{last_loss:.6g}",
+                    "lr": f"{scheduler.get_last_lr()[0]:.6g}",
+                    "elapsed_s": f"{elapsed:.1f}",
+                    "samples_per_s": f"{(step - start_step) * config.batch_size / max(elapsed - elapsed0, 1e-9):.2f}",  # noqa: E501
+                }
+            if step % config.val_every == 0 or final:
+                if ctx.is_main:
+                    val = validate(model, spec, val_windows, config, ctx.device)
+                    row.update({k: f"{v:.6g}" for k, v in val.items()})
+                    better = val["val_median_rel"] < best
+                    best = min(best, val["val_median_rel"])
+                    _checkpoint(files, model, config, spec, kwargs, optimizer, scheduler, step,
+                                best, time.monotonic() - t0, val, better)  # fmt: skip
+                distributed.barrier(ctx)
+            if row and ctx.is_main:
+                row.setdefault("step", step)
+                files.append_log(row)
+                if writer is not None:
+                    for k, v in row.items():
+                        if k != "step" and v != "":
+                            writer.add_scalar(k, float(v), step)
+            bar.update(step, last_loss, val)
+            if stop:
+                stopped_early = step < config.iterations
+                break
+    elapsed = time.monotonic() - t0
+    if ctx.is_main:
+        if writer is not None:
+            writer.close()
+        files.plot_curve()
+    return TrainResult(files.dir, step, elapsed, last_loss, best, val, stopped_early)
+
+
+def _checkpoint(
+    files: RunFiles,
+    model: nn.Module,
+    config: TrainConfig,
+    spec: InputSpec,
+    kwargs: dict[str, Any],
+    optimizer: torch.optim.Optimizer,
+    scheduler: Any,
+    step: int,
+    best: float,
+    elapsed_s: float,
+    val: dict[str, float],
+    better: bool,
+) -> None:
+    extra = {"config": config.as_dict(), "step": step, "metrics": val, "elapsed_s": elapsed_s}
+    save = functools.partial(
+        save_checkpoint, model=model, name=config.model, model_kwargs=kwargs,
+        input_spec=spec.as_dict(), extra=extra,
+    )  # fmt: skip
+    save(files.last)
+    if better:
+        save(files.best)
+    state = {
+        "step": step,
+        "best": best,
+        "elapsed_s": elapsed_s,
+        "optimizer": optimizer.state_dict(),
+        "scheduler": scheduler.state_dict(),
+        "rng": rng_states(),
+    }
+    with atomic_path(files.resume) as tmp:
+        torch.save(state, tmp)
+
+
+def _load_resume(
+    files: RunFiles, model: nn.Module, optimizer, scheduler, ctx: distributed.DistContext
+) -> tuple[int, float, float]:
+    if not (files.last.exists() and files.resume.exists()):
+        raise InputError(f"{files.dir}: nothing to resume (needs last.pt and {RESUME_FILE}).")
+    payload = torch.load(files.last, map_location=ctx.device, weights_only=False)
+    model.load_state_dict(payload["state_dict"])
+    state = torch.load(files.resume, map_location="cpu", weights_only=False)
+    optimizer.load_state_dict(state["optimizer"])
+    scheduler.load_state_dict(state["scheduler"])
+    set_rng_states(state["rng"])
+    return int(state["step"]), float(state["best"]), float(state["elapsed_s"])
+
+
+def _tensorboard(run_dir: Path) -> Any:
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:
+        raise InputError(
+            "--tensorboard needs the tensorboard package (pip install tensorboard); the CSV "
+            "log is always written."
+        ) from None
+    return SummaryWriter(str(run_dir / "tensorboard"))
+
+
+class _ProgressBar:
+    """A rich progress bar with loss, validation error, elapsed time and ETA (rank 0 only)."""
+
+    def __init__(self, config: TrainConfig, start: int, enabled: bool) -> None:
+        self.enabled = enabled
+        if not enabled:
+            return
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        self.progress = Progress(
+            TextColumn("[bold]train[/] {task.fields[model]}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("loss {task.fields[loss]}  val rel {task.fields[val]}"),
+            TimeElapsedColumn(),
+            TextColumn("ETA"),
+            TimeRemainingColumn(),
+        )
+        self.task = self.progress.add_task(
+            "train", total=config.iterations, completed=start, model=config.model,
+            loss="-", val="-",
+        )  # fmt: skip
+
+    def __enter__(self) -> _ProgressBar:
+        if self.enabled:
+            self.progress.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.enabled:
+            self.progress.__exit__(*exc)
+
+    def update(self, step: int, loss: float, val: dict[str, float]) -> None:
+        if not self.enabled:
+            return
+        rel = val.get("val_median_rel")
+        self.progress.update(
+            self.task, completed=step, loss=f"{loss:.3f}" if loss == loss else "-",
+            val="-" if rel is None else f"{rel:.3f}",
+        )  # fmt: skip
