@@ -127,16 +127,20 @@ def _markdown(title: str, blocks: Sequence[Block]) -> str:
     for block in blocks:
         if isinstance(block, Table):
             lines += [f"**{block.caption}**", ""]
-            lines.append("| " + " | ".join(block.header) + " |")
+            lines.append("| " + " | ".join(_md_cell(c) for c in block.header) + " |")
             lines.append("|" + "|".join([":--"] + ["--:"] * (len(block.header) - 1)) + "|")
             for row in block.rows:
-                lines.append("| " + " | ".join(c.replace("|", "\\|") for c in row) + " |")
+                lines.append("| " + " | ".join(_md_cell(c) for c in row) + " |")
         elif isinstance(block, FigureRef):
             lines += [f"![{block.caption}]({block.file})", "", f"*{block.caption}*"]
         else:
             lines.append(block)
         lines.append("")
     return "\n".join(lines)
+
+
+def _md_cell(text: str) -> str:
+    return text.replace("|", "\\|")
 
 
 def overall_table(models: Mapping[str, Mapping[str, Any]], caption: str) -> Table:
@@ -177,7 +181,7 @@ def axis_table(models: Mapping[str, Mapping[str, Any]]) -> Table:
         "axis",
         "mean abs. error [deg/s]",
         "RMSE [deg/s]",
-        "median |rel. error|",
+        "median abs. rel. error",
         "signed rel. error: q1 / median / q3",
     ]
     rows = []
