@@ -1,1 +1,10 @@
-"""Metrics, per-speed bins, figures and reports."""
+"""Metrics, per-speed bins, figures and reports.
+
+``run_evaluation`` scores a model and the mean predictor on a dataset split and writes
+metrics.json, predictions.npz, figures and a report; ``compare_runs`` puts several such runs side
+by side. The pure metric functions live in :mod:`.metrics` and :mod:`.bins`.
+"""
+
+from spikegyro.evaluate.commands import compare_runs, run_evaluation
+
+__all__ = ["compare_runs", "run_evaluation"]

@@ -1,0 +1,520 @@
+"""``spikegyro evaluate`` and ``spikegyro report``, and :func:`run_evaluation` for Python callers.
+
+``evaluate`` runs one model (a checkpoint, the paper's official weights, or contrast maximization)
+and the mean predictor over a split's fixed windows, and writes into ``OUT``:
+
+- ``metrics.json``: overall, per-axis and per-speed-bin metrics of the model (key ``model``) and
+  of the mean predictor (key ``mean``), the SNN's spike statistics, data summary and warnings;
+- ``predictions.npz``: ``pred``, ``gt`` (n, T, 3) rad/s, ``mean_omega`` (3,) rad/s, ``sources``,
+  ``t_start_us``, ``num_events``, so ``report`` and re-analysis never rerun a model;
+- ``bins.png`` (paper Fig. 4), ``axes.png`` (Fig. 5), ``window_<i>.png`` (Fig. 3);
+- ``report.html`` (self-contained) and ``report.md``.
+
+``report`` reads several such folders and compares them in one table and one figure.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import typer
+from rich.console import Console
+from rich.progress import Progress
+from rich.table import Table as RichTable
+
+from spikegyro.baselines.mean import mean_predictions, training_mean_omega
+from spikegyro.errors import InputError
+from spikegyro.evaluate import figures, metrics
+from spikegyro.evaluate.bins import SPEED_BIN_EDGES_DEG_S, bin_labels, empty_bins, per_bin_metrics
+from spikegyro.evaluate.report import (
+    Block,
+    FigureRef,
+    axis_table,
+    bin_table,
+    fmt,
+    overall_table,
+    write_report,
+)
+from spikegyro.evaluate.spikes import spike_statistics, spike_table
+from spikegyro.events.io import atomic_path
+from spikegyro.models.registry import load_checkpoint
+from spikegyro.train.data import InputSpec, Window, fixed_windows
+from spikegyro.train.infer import predict_windows, spec_of
+
+METRICS_FORMAT = "spikegyro-metrics/1"
+MODEL_CHOICES = ("cmax",)
+DEFAULT_EXAMPLES = 3
+
+
+def display_name(payload: dict[str, Any]) -> str:
+    """The model's name in tables and legends, from its checkpoint (e.g. ``ResNet-50 (V)``)."""
+    model = payload.get("model", "model")
+    rep = payload.get("input", {}).get("representation", "")
+    tag = {"voxel": "V", "frames": "A", "spikes": "E"}.get(rep, rep)
+    if model == "snn6":
+        return "SNN-6" if rep == "spikes" else f"SNN-6 ({tag})"
+    if model == "ann6":
+        return "ANN-6" if rep == "voxel" else f"ANN-6 ({tag})"
+    if model == "resnet50":
+        return f"ResNet-50 ({tag})"
+    return model
+
+
+def _is_official(path: Path) -> bool:
+    try:
+        raw = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception:  # read_checkpoint will explain what is wrong with the file
+        return False
+    return isinstance(raw, dict) and "model_state_dict" in raw
+
+
+def load_model(checkpoint: str | os.PathLike) -> tuple[torch.nn.Module, dict[str, Any], str]:
+    """Load a spikegyro checkpoint or the paper's official one; returns (model, payload, name)."""
+    path = Path(checkpoint)
+    if not path.exists():
+        raise InputError(f"{path}: no such checkpoint file.")
+    if _is_official(path):
+        from spikegyro.models.official import load_official
+
+        model, payload = load_official(path)
+        return model, payload, "SNN-6 (official)"
+    model, payload = load_checkpoint(path)
+    return model, payload, display_name(payload)
+
+
+def _check_resolution(spec: InputSpec, windows: list[Window], checkpoint: Path) -> None:
+    ev = windows[0].events
+    if (ev.width, ev.height) != tuple(spec.sensor):
+        raise InputError(
+            f"{checkpoint}: the model was trained on {spec.sensor[0]}x{spec.sensor[1]} events but "
+            f"{windows[0].source} is {ev.width}x{ev.height}; evaluate on data from the same "
+            "sensor size (or simulate the dataset at the checkpoint's resolution)."
+        )
+
+
+def choose_examples(windows: list[Window], gt: np.ndarray, count: int) -> list[int]:
+    """Windows for the qualitative figures: among windows holding events, those whose mean true
+    speed over the evaluated steps is closest to evenly spaced quantiles (slow ... fast)."""
+    candidates = [i for i, w in enumerate(windows) if len(w.events)]
+    if not candidates or count <= 0:
+        return []
+    speed = np.linalg.norm(gt[candidates, metrics.EVAL_START_STEP :], axis=-1).mean(axis=1)
+    order = np.argsort(speed, kind="stable")
+    quantiles = np.linspace(0.1, 0.9, count) if count > 1 else np.array([0.5])
+    picks = order[np.round(quantiles * (len(order) - 1)).astype(int)]
+    return sorted({candidates[int(i)] for i in picks})
+
+
+def _model_results(pred: np.ndarray, gt: np.ndarray) -> dict[str, Any]:
+    return {"metrics": metrics.summary(pred, gt), "per_bin": per_bin_metrics(pred, gt)}
+
+
+def _finite(pred: np.ndarray, name: str, warnings: list[str]) -> tuple[np.ndarray, int]:
+    bad = ~np.isfinite(pred)
+    count = int(bad.any(axis=-1).sum())
+    if count:
+        warnings.append(
+            f"{name} gave {count} non-finite predictions (steps); they are scored as 0 rad/s."
+        )
+        pred = np.where(bad, 0.0, pred)
+    return pred, count
+
+
+def _mean_omega(data_dir: Path, warnings: list[str]) -> tuple[np.ndarray, str]:
+    try:
+        return training_mean_omega(data_dir, "train"), str(data_dir / "train")
+    except InputError as exc:
+        warnings.append(f"mean predictor uses omega = 0 (close to the paper's mean): {exc}")
+        return np.zeros(3), "zero (no training split)"
+
+
+def _write_json(path: Path, data: dict[str, Any]) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+
+
+def _predict(
+    model_spec: tuple[torch.nn.Module, dict[str, Any]] | None,
+    windows: list[Window],
+    batch_size: int,
+    device: str,
+    console: Console,
+) -> np.ndarray:
+    with Progress(console=console, transient=True) as bar:
+        task = bar.add_task("predicting", total=len(windows))
+        if model_spec is None:
+            from spikegyro.baselines import cmax
+
+            return cmax.predict_windows(
+                windows, progress=lambda done, _total: bar.update(task, completed=done)
+            )
+        model, payload = model_spec
+        model.to(device)
+        return predict_windows(
+            model,
+            payload,
+            windows,
+            batch_size,
+            device=device,
+            progress=lambda done: bar.update(task, completed=done),
+        )
+
+
+def _example_figures(
+    out_dir: Path,
+    windows: list[Window],
+    pred: np.ndarray,
+    examples: list[int],
+    name: str,
+) -> list[FigureRef]:
+    if not examples:
+        return []
+    from spikegyro.events.plot import plot_events_and_omega
+
+    refs = []
+    for i in examples:
+        w = windows[i]
+        fig = plot_events_and_omega(
+            w.events,
+            t_start_us=w.t_start_us,
+            omega_true=w.omega,
+            omega_pred=pred[i],
+            title=f"{name}: window {i} ({Path(w.source).name}, from {w.t_start_us / 1e3:g} ms)",
+        )
+        file = f"window_{i:05d}.png"
+        figures.save_figure(fig, out_dir / file)
+        refs.append(
+            FigureRef(
+                f"Window {i}: events in space-time (ON red, OFF blue) above the predicted "
+                "(solid) and true (dashed) angular velocity on three axes (paper Fig. 3); "
+                f"{len(w.events):,} events.",
+                file,
+            )
+        )
+    return refs
+
+
+def run_evaluation(
+    data_dir: str | os.PathLike,
+    checkpoint: str | os.PathLike | None = None,
+    split: str = "test",
+    out_dir: str | os.PathLike = "evaluation",
+    *,
+    model: str | None = None,
+    name: str | None = None,
+    batch_size: int = 8,
+    device: str | None = None,
+    limit: int | None = None,
+    examples: list[int] | None = None,
+    num_examples: int = DEFAULT_EXAMPLES,
+    spike_windows: int = 16,
+    console: Console | None = None,
+) -> dict[str, Any]:
+    """Evaluate a checkpoint (or ``model="cmax"``) and the mean predictor on ``data_dir/split``.
+
+    Args:
+        data_dir: dataset folder (``DIR/{train,val,test}/*.h5``); the mean predictor's value is
+            the mean ground truth of ``DIR/train``.
+        checkpoint: a spikegyro checkpoint or the paper's official one (detected by content).
+        split: which split's fixed windows to score.
+        out_dir: where the outputs go (see the module docstring).
+        model: ``"cmax"`` for contrast maximization (then no checkpoint).
+        name: display name overriding the one derived from the checkpoint.
+        batch_size: windows per forward pass.
+        device: torch device; default CUDA when available.
+        limit: score only the first ``limit`` windows (quick looks).
+        examples: window indices for the qualitative figures; default ``num_examples`` windows
+            spread from slow to fast.
+        spike_windows: windows (the first ones with events) used for the SNN spike statistics.
+
+    Returns:
+        The dict written to ``metrics.json``.
+    """
+    console = console or Console(stderr=True)
+    data_dir, out_dir = Path(data_dir), Path(out_dir)
+    if (checkpoint is None) == (model is None):
+        raise InputError("give either --checkpoint CKPT or --model cmax (exactly one).")
+    if model is not None and model not in MODEL_CHOICES:
+        raise InputError(f"--model {model}: choose one of {', '.join(MODEL_CHOICES)}.")
+    device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+    warnings: list[str] = []
+
+    if checkpoint is not None:
+        net, payload, default_name = load_model(checkpoint)
+        spec = spec_of(payload)
+        model_spec: tuple[torch.nn.Module, dict[str, Any]] | None = (net, payload)
+        model_info = {"source": str(checkpoint), "checkpoint_model": payload.get("model")}
+        model_info["input"] = spec.as_dict()
+    else:
+        spec, model_spec, default_name = InputSpec(), None, "CMax"
+        model_info = {"source": "contrast maximization (spikegyro.baselines.cmax)"}
+    name = name or default_name
+
+    windows = fixed_windows(data_dir, split, spec.window_ms)
+    if limit is not None:
+        windows = windows[: max(0, limit)]
+    if not windows:
+        raise InputError(f"{data_dir / split}: no windows of {spec.window_ms} ms to evaluate.")
+    if checkpoint is not None:
+        _check_resolution(spec, windows, Path(checkpoint))
+    num_events = np.array([len(w.events) for w in windows], dtype=np.int64)
+    if (num_events == 0).any():
+        warnings.append(
+            f"{int((num_events == 0).sum())} of {len(windows)} windows hold no events; the "
+            "model sees no input there, and their errors still count."
+        )
+
+    gt = np.stack([w.omega for w in windows]).astype(np.float64)
+    pred = _predict(model_spec, windows, batch_size, device, console).astype(np.float64)
+    pred, nonfinite = _finite(pred, name, warnings)
+    mean_omega, mean_source = _mean_omega(data_dir, warnings)
+    mean_pred = mean_predictions(mean_omega, *gt.shape[:2])
+
+    model_res = {"name": name, **model_info, **_model_results(pred, gt)}
+    model_res["nonfinite_predictions"] = nonfinite
+    if model_spec is not None and hasattr(model_spec[0], "forward_with_spikes"):
+        model_res["spikes"] = spike_statistics(
+            model_spec[0], spec, [w for w in windows if len(w.events)][:spike_windows], device
+        )
+    mean_res = {
+        "name": "Mean",
+        "source": mean_source,
+        "omega_rad_s": mean_omega.tolist(),
+        **_model_results(mean_pred, gt),
+    }
+    empty = empty_bins(model_res["per_bin"])
+    if empty:
+        warnings.append(f"no evaluated step in speed bin(s) {', '.join(empty)} deg/s; left empty.")
+    if model_res["metrics"]["median_relative_error"] is None:
+        warnings.append("every true speed is under 1 deg/s: the relative error is undefined.")
+
+    result = {
+        "format": METRICS_FORMAT,
+        "data": {
+            "dir": str(data_dir),
+            "split": split,
+            "windows": len(windows),
+            "window_ms": int(gt.shape[1]),
+            "sensor": [windows[0].events.width, windows[0].events.height],
+            "eval_from_step": metrics.EVAL_START_STEP,
+            "min_speed_deg_s": metrics.MIN_SPEED_DEG_S,
+            "windows_without_events": int((num_events == 0).sum()),
+            "events_per_window": {
+                "mean": float(num_events.mean()),
+                "median": float(np.median(num_events)),
+                "min": int(num_events.min()),
+                "max": int(num_events.max()),
+            },
+        },
+        "bins": {
+            "edges_deg_s": [None if math.isinf(e) else e for e in SPEED_BIN_EDGES_DEG_S],
+            "labels": bin_labels(),
+        },
+        "model": model_res,
+        "mean": mean_res,
+        "warnings": warnings,
+    }
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out_dir / "predictions.npz") as tmp, open(tmp, "wb") as f:
+        np.savez_compressed(
+            f,
+            pred=pred,
+            gt=gt,
+            mean_omega=mean_omega,
+            sources=np.array([w.source for w in windows]),
+            t_start_us=np.array([w.t_start_us for w in windows], dtype=np.int64),
+            num_events=num_events,
+        )
+    _write_json(out_dir / "metrics.json", result)
+    picks = examples if examples is not None else choose_examples(windows, gt, num_examples)
+    bad = [i for i in picks if not 0 <= i < len(windows)]
+    if bad:
+        raise InputError(f"--example {bad[0]}: there are only {len(windows)} windows (0-based).")
+    example_refs = _example_figures(out_dir, windows, pred, picks, name)
+    _evaluation_report(out_dir, result, example_refs)
+    _print_summary(console, result, out_dir)
+    return result
+
+
+def _evaluation_report(out_dir: Path, result: dict[str, Any], examples: list[FigureRef]) -> None:
+    model, mean, data = result["model"], result["mean"], result["data"]
+    name = model["name"]
+    per_bin = {name: model["per_bin"], "Mean": mean["per_bin"]}
+    figures.save_figure(
+        figures.median_relative_error_per_bin(per_bin, f"{name} vs mean predictor"),
+        out_dir / "bins.png",
+    )
+    figures.save_figure(
+        figures.axis_relative_error_boxes(model["per_bin"], name), out_dir / "axes.png"
+    )
+    blocks: list[Block] = [
+        f"Data: {data['dir']} / {data['split']}: {data['windows']:,} windows of "
+        f"{data['window_ms']} ms from a {data['sensor'][0]}x{data['sensor'][1]} sensor; metrics "
+        f"over steps >= {data['eval_from_step']} ms of each window. Mean predictor: "
+        f"{', '.join(f'{v:+.2f}' for v in np.degrees(mean['omega_rad_s']))} deg/s "
+        f"(from {mean['source']}).",
+        "Median relative error: median of ‖ω − ω̂‖ / ‖ω̂‖ (ω̂: ground truth) over steps with "
+        f"‖ω̂‖ ≥ {data['min_speed_deg_s']:g} deg/s. Mean Euclidean error: mean of ‖ω − ω̂‖, "
+        'which the paper reports as "RMSE". RMSE: the true root-mean-square of ‖ω − ω̂‖.',
+        *[f"Warning: {w}" for w in result["warnings"]],
+        "## Overall",
+        overall_table(
+            {name: model["metrics"], "Mean": mean["metrics"]},
+            "Overall errors; paper columns: Gehrig et al. 2020, Table I, on their own data "
+            "(Sun360 panoramas through ESIM), not ours",
+        ),
+        axis_table({name: model["metrics"], "Mean": mean["metrics"]}),
+        "## Per speed",
+        bin_table(per_bin),
+        FigureRef("Median relative error per true-speed bin (paper Fig. 4).", "bins.png"),
+        FigureRef(
+            f"{name}: signed per-axis relative error per true-speed bin; boxes: quartiles, "
+            "whiskers: 1.5 IQR (paper Fig. 5).",
+            "axes.png",
+        ),
+    ]
+    if "spikes" in model:
+        blocks += ["## Spiking activity", spike_table(model["spikes"])]
+    if examples:
+        blocks += ["## Example windows", *examples]
+    write_report(out_dir, f"spikegyro evaluation: {name}", blocks)
+
+
+def _print_summary(console: Console, result: dict[str, Any], out_dir: Path) -> None:
+    table = RichTable(title=f"{result['data']['dir']} / {result['data']['split']}")
+    for col in ("model", "median rel. error", 'mean Eucl. error ("RMSE")', "RMSE"):
+        table.add_column(col, justify="right" if col != "model" else "left")
+    for key in ("model", "mean"):
+        m = result[key]["metrics"]
+        table.add_row(
+            result[key]["name"],
+            fmt(m["median_relative_error"]),
+            f"{fmt(m['mean_euclidean_error_deg_s'], 1)} deg/s",
+            f"{fmt(m['rmse_deg_s'], 1)} deg/s",
+        )
+    console.print(table)
+    for w in result["warnings"]:
+        console.print(f"[yellow]warning:[/] {w}")
+    console.print(f"wrote {out_dir}/metrics.json, predictions.npz, report.html, report.md")
+
+
+def evaluate(
+    data: Path = typer.Option(..., "--data", help="Dataset folder (DIR/{train,val,test}/*.h5)."),
+    checkpoint: Path = typer.Option(
+        None, "--checkpoint", help="spikegyro checkpoint or the paper's official weights."
+    ),
+    model: str = typer.Option(
+        None, "--model", help="A non-learned method instead of a checkpoint: cmax."
+    ),
+    split: str = typer.Option("test", "--split", help="train, val or test."),
+    out: Path = typer.Option(..., "--out", help="Output folder."),
+    name: str = typer.Option(None, "--name", help="Model name in tables and legends."),
+    batch_size: int = typer.Option(8, "--batch-size", help="Windows per forward pass."),
+    device: str = typer.Option(None, "--device", help="cpu, cuda, cuda:1 (default: auto)."),
+    limit: int = typer.Option(None, "--limit", help="Score only the first N windows."),
+    example: list[int] = typer.Option(
+        None, "--example", help="Window index for a qualitative figure (repeatable)."
+    ),
+) -> None:
+    """Score a model and the mean predictor: metrics.json, predictions, figures and a report."""
+    run_evaluation(
+        data,
+        checkpoint,
+        split,
+        out,
+        model=model,
+        name=name,
+        batch_size=batch_size,
+        device=device,
+        limit=limit,
+        examples=example or None,
+    )
+
+
+def load_run(run_dir: str | os.PathLike) -> dict[str, Any]:
+    """Read ``run_dir/metrics.json`` written by ``evaluate``."""
+    path = Path(run_dir) / "metrics.json"
+    if not path.exists():
+        raise InputError(f"{run_dir}: no metrics.json; run `spikegyro evaluate --out {run_dir}`.")
+    data = json.loads(path.read_text(encoding="utf-8"))
+    if data.get("format") != METRICS_FORMAT:
+        raise InputError(f"{path}: not a spikegyro metrics file (format {data.get('format')}).")
+    return data
+
+
+def compare_runs(
+    run_dirs: list[str | os.PathLike], out_dir: str | os.PathLike
+) -> dict[str, dict[str, Any]]:
+    """One comparison table and one per-bin figure over several ``evaluate`` outputs.
+
+    The mean predictor is taken from the first run. Returns {model name: its results}.
+    """
+    if not run_dirs:
+        raise InputError("report: give at least one RUN_DIR written by `spikegyro evaluate`.")
+    out_dir = Path(out_dir)
+    runs = [load_run(r) for r in run_dirs]
+    edges = runs[0]["bins"]["edges_deg_s"]
+    models: dict[str, dict[str, Any]] = {}
+    notes = []
+    for run_dir, run in zip(run_dirs, runs, strict=True):
+        if run["bins"]["edges_deg_s"] != edges:
+            raise InputError(f"{run_dir}: its speed bins differ from {run_dirs[0]}'s.")
+        key = run["model"]["name"]
+        if key in models:
+            key = f"{key} [{Path(run_dir).name}]"
+        models[key] = run["model"]
+        notes.append(
+            f"{key}: {run_dir} ({run['data']['dir']} / {run['data']['split']}, "
+            f"{run['data']['windows']:,} windows)"
+        )
+    models["Mean"] = runs[0]["mean"]
+    if len({(r["data"]["dir"], r["data"]["split"], r["data"]["windows"]) for r in runs}) > 1:
+        notes.append("Warning: the runs were scored on different data; compare with care.")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    per_bin = {k: m["per_bin"] for k, m in models.items()}
+    figures.save_figure(figures.median_relative_error_per_bin(per_bin), out_dir / "bins.png")
+    blocks: list[Block] = [
+        *notes,
+        overall_table(
+            {k: m["metrics"] for k, m in models.items()},
+            "Overall errors (steps >= 50); paper columns: Gehrig et al. 2020, Table I, on their "
+            "own data (Sun360 panoramas through ESIM), not ours",
+        ),
+        FigureRef("Median relative error per true-speed bin (paper Fig. 4).", "bins.png"),
+        bin_table(per_bin),
+    ]
+    write_report(out_dir, "spikegyro comparison", blocks)
+    _write_json(
+        out_dir / "comparison.json",
+        {k: {"metrics": m["metrics"], "per_bin": m["per_bin"]} for k, m in models.items()},
+    )
+    return models
+
+
+def report(
+    run_dirs: list[Path] = typer.Argument(..., help="Output folders of `spikegyro evaluate`."),
+    out: Path = typer.Option(..., "--out", help="Output folder for the comparison."),
+) -> None:
+    """Compare evaluated runs (and the mean predictor) beside the paper's published numbers."""
+    console = Console(stderr=True)
+    models = compare_runs(list(run_dirs), out)
+    table = RichTable(title="comparison")
+    for col in ("model", "median rel. error", 'mean Eucl. error ("RMSE") deg/s', "RMSE deg/s"):
+        table.add_column(col)
+    for name, m in models.items():
+        s = m["metrics"]
+        table.add_row(
+            name,
+            fmt(s["median_relative_error"]),
+            fmt(s["mean_euclidean_error_deg_s"], 1),
+            fmt(s["rmse_deg_s"], 1),
+        )
+    console.print(table)
+    console.print(f"wrote {out}/report.html, report.md, bins.png, comparison.json")
