@@ -12,6 +12,7 @@ import typer
 
 from spikegyro import __version__
 from spikegyro.errors import InputError
+from spikegyro.evaluate import commands as evaluate_commands
 from spikegyro.events import commands as events_commands
 
 app = typer.Typer(
@@ -37,6 +38,8 @@ def _root(
 
 
 app.command("info")(events_commands.info)
+app.command("evaluate")(evaluate_commands.evaluate)
+app.command("report")(evaluate_commands.report)
 
 
 def main() -> None:
