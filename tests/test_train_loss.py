@@ -29,7 +29,7 @@ def test_window_means_count_every_window_and_gradients_flow():
     prediction = torch.tensor([[1.0, 2.0, 2.0], [0.0, 0.0, 0.0]], requires_grad=True)
     target = torch.tensor([[0.0, 0.0, 0.0], [0.0, 3.0, 4.0]])
     loss = angular_velocity_loss(prediction, target)
-    assert float(loss) == pytest.approx((3 + 5) / 2)
+    assert loss.item() == pytest.approx((3 + 5) / 2)
     loss.backward()
     # d/dp of |p - t| / 2 is the unit error vector / 2
     torch.testing.assert_close(prediction.grad[0], torch.tensor([1.0, 2.0, 2.0]) / 3 / 2)

@@ -82,3 +82,8 @@ def agree(flag: bool, ctx: DistContext) -> bool:
 def barrier(ctx: DistContext) -> None:
     if ctx.distributed:
         dist.barrier()
+
+
+def init_rank() -> int:
+    """This process's rank from torchrun's environment (0 outside torchrun)."""
+    return int(os.environ.get("RANK", "0"))
