@@ -1,0 +1,103 @@
+"""The event-driven stateful network reproduces the batch forward step for step."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from stream_helpers import TinySNN, random_events, step_offsets
+
+from spikegyro.events.representations import spike_tensor
+from spikegyro.snn.kernels import refractory_kernel, srm_kernel
+from spikegyro.stream.model import spec_from_model
+from spikegyro.stream.stateful import StreamingSNN, fit_alpha_kernel, fit_exp_kernel
+
+H, W = 24, 32
+
+
+@pytest.mark.parametrize("tau", [1.0, 2.0, 4.0, 8.0])
+def test_srm_kernel_is_a_double_pole(tau):
+    c, p = fit_alpha_kernel(srm_kernel(tau).numpy())
+    assert c == pytest.approx(math.e / tau, rel=1e-5)
+    assert p == pytest.approx(math.exp(-1 / tau), rel=1e-6)
+
+
+@pytest.mark.parametrize(("theta", "tau_r"), [(0.27, 1.0), (0.4, 4.0)])
+def test_refractory_kernel_is_a_single_pole(theta, tau_r):
+    a, q = fit_exp_kernel(refractory_kernel(theta, tau_r).numpy())
+    assert a == pytest.approx(-2 * theta, rel=1e-6)
+    assert q == pytest.approx(math.exp(-1 / tau_r), rel=1e-6)
+
+
+def test_kernels_of_another_shape_are_refused():
+    with pytest.raises(ValueError, match="c k p"):
+        fit_alpha_kernel(np.array([0.0, 1.0, 0.5, 0.5, 0.1]))
+    with pytest.raises(ValueError, match="a q"):
+        fit_exp_kernel(np.array([0.0, -1.0, -0.5, -0.4]))
+
+
+def _batch(model, events, steps, dtype):
+    x = spike_tensor(
+        events.x, events.y, events.t, events.p, height=H, width=W, t_start_us=0, num_bins=steps
+    )
+    with torch.no_grad():
+        out, spikes = model.forward_with_spikes(torch.from_numpy(x)[None].to(dtype))
+    return out[0].T.numpy(), [int(s.sum()) for s in spikes]
+
+
+def test_stateful_equals_batch_in_double_precision_across_uneven_calls():
+    model = TinySNN().double()
+    steps = 160
+    events = random_events(W, H, steps, rate=0.02, seed=1)
+    expected, spike_counts = _batch(model, events, steps, torch.float64)
+    assert min(spike_counts) > 100  # every layer is active
+    engine = StreamingSNN(spec_from_model(model, (2, H, W), np.float64), dtype=np.float64)
+    index, offsets = step_offsets(events, 0, steps)
+    outs = []
+    for a, b in ((0, 1), (1, 37), (37, 38), (38, 120), (120, steps)):  # state carried over
+        outs.append(engine.run(index[offsets[a] : offsets[b]], offsets[a : b + 1] - offsets[a]))
+    got = np.concatenate(outs)
+    assert engine.spike_counts.tolist() == spike_counts
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-10 * np.abs(expected).max())
+
+
+def test_stateful_float32_matches_batch_within_1e4():
+    model = TinySNN(seed=3)
+    steps = 120
+    events = random_events(W, H, steps, rate=0.01, seed=2)
+    expected, _ = _batch(model, events, steps, torch.float32)
+    engine = StreamingSNN(spec_from_model(model, (2, H, W)))
+    got = engine.run(*step_offsets(events, 0, steps))
+    scale = np.abs(expected).max()
+    assert scale > 0
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-4 * scale)
+
+
+def test_duplicate_events_in_a_bin_count_once():
+    model = TinySNN()
+    engine = StreamingSNN(spec_from_model(model, (2, H, W)))
+    events = random_events(W, H, 40, rate=0.03, seed=4)
+    index, offsets = step_offsets(events, 0, 40)
+    once = engine.run(index, offsets)
+    engine.reset()
+    # every event twice, adjacent: the binary input is unchanged
+    twice = engine.run(np.repeat(index, 2), offsets * 2)
+    np.testing.assert_array_equal(once, twice)
+
+
+def test_state_returns_to_exact_zero_after_the_kernels_end():
+    # One burst, then silence: the batch output is exactly zero once every truncated kernel has
+    # passed, and the streaming state is dropped (not just small) by then.
+    model = TinySNN()
+    engine = StreamingSNN(spec_from_model(model, (2, H, W)))
+    events = random_events(W, H, 5, rate=0.2, seed=5)
+    steps = 200
+    expected, _ = _batch(model, events, steps, torch.float32)
+    got = engine.run(*step_offsets(events, 0, steps))
+    assert np.abs(expected[:50]).max() > 0
+    quiet = np.flatnonzero(np.abs(expected).max(axis=1) > 0)[-1] + 1
+    assert quiet < steps
+    assert np.all(got[quiet:] == 0.0)
+    assert not engine._state.any()  # every pixel went stale and was cleared
