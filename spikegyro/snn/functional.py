@@ -1,0 +1,234 @@
+"""Pure functions of SRM spiking layers: PSP filtering, spiking with refractoriness, surrogate.
+
+Units: one time step is Ts = 1 ms; potentials and thresholds are in the (dimensionless) units of
+the weights; spikes are 0/1 per step (SLAYER's 1/Ts with Ts = 1).
+
+Layout: every function takes the axis that holds time as ``dim`` (default: last, the official
+SLAYER layout ``(N, C, H, W, T)``). Internally time is brought to the front as a ``(T, M)``
+matrix, M = all other axes: the PSP is one banded-Toeplitz matrix product over all neurons, and
+the spike recursion walks the T rows with whole-row operations. Tensors whose storage is already
+time-major (e.g. ``(T, N, C, H, W)`` permuted to look time-last) pass through without a copy; the
+layers in :mod:`spikegyro.snn.layers` keep their data that way.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+TAU_RHO = 0.3
+"""Default width of the surrogate spike pdf, relative to θ (SLAYER's tauRho)."""
+
+_BLOCK_STEPS = 128
+"""PSP block length (steps): windows up to this long take one matrix product; longer ones are
+cut into blocks so the cost grows linearly with T."""
+
+
+def _time_rows(x: torch.Tensor, dim: int) -> torch.Tensor:
+    """View ``x`` as a (T, M) matrix with time along the rows; copies only for odd strides."""
+    time_first = x.movedim(dim, 0)
+    steps = time_first.shape[0]
+    if time_first.is_contiguous():
+        return time_first.reshape(steps, -1)
+    # Time-last storage: the transpose of a (M, T) view, which matmul reads without a copy.
+    return x.movedim(dim, -1).reshape(-1, steps).t()
+
+
+def _from_time_rows(rows: torch.Tensor, like: torch.Tensor, dim: int) -> torch.Tensor:
+    """Inverse of :func:`_time_rows` for a time-major result: a view shaped like ``like``."""
+    return rows.reshape(like.movedim(dim, 0).shape).movedim(0, dim)
+
+
+def _toeplitz(kernel: torch.Tensor, size: int) -> torch.Tensor:
+    """(size, size) matrix W[i, j] = kernel[i − j] where 0 ≤ i − j < len(kernel), else 0."""
+    steps = torch.arange(size, device=kernel.device)
+    lag = steps[:, None] - steps[None, :]
+    valid = (lag >= 0) & (lag < kernel.numel())
+    return torch.where(valid, kernel[lag.clamp(0, kernel.numel() - 1)], kernel.new_zeros(()))
+
+
+def _causal_filter(rows: torch.Tensor, kernel: torch.Tensor, *, adjoint: bool) -> torch.Tensor:
+    """y[t] = Σ_k kernel[k]·x[t − k] (causal) or its adjoint y[t] = Σ_k kernel[k]·x[t + k].
+
+    ``rows`` is (T, M); the result is a new contiguous (T, M) tensor. Blocks of ``block`` output
+    steps only see their own and one neighbouring block of input, since block ≥ len(kernel).
+    """
+    steps = rows.shape[0]
+    kernel = kernel.to(device=rows.device, dtype=rows.dtype)
+    out = torch.empty(rows.shape, dtype=rows.dtype, device=rows.device)
+    if rows.numel() == 0:
+        return out
+    block = max(_BLOCK_STEPS, kernel.numel())
+    band = _toeplitz(kernel, min(steps, 2 * block))
+    for b0 in range(0, steps, block):
+        b1 = min(b0 + block, steps)
+        if adjoint:
+            end = min(steps, b1 + block)
+            torch.matmul(band[: end - b0, : b1 - b0].t(), rows[b0:end], out=out[b0:b1])
+        else:
+            start = max(0, b0 - block)
+            torch.matmul(
+                band[b0 - start : b1 - start, : b1 - start], rows[start:b1], out=out[b0:b1]
+            )
+    return out
+
+
+class _PSPFunction(torch.autograd.Function):
+    """Causal filtering along rows; the backward pass is the exact adjoint (a correlation)."""
+
+    @staticmethod
+    def forward(ctx, rows: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
+        ctx.save_for_backward(kernel)
+        return _causal_filter(rows, kernel, adjoint=False)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> tuple[torch.Tensor, None]:
+        (kernel,) = ctx.saved_tensors
+        return _causal_filter(grad, kernel, adjoint=True), None
+
+
+def psp(x: torch.Tensor, kernel: torch.Tensor, dim: int = -1) -> torch.Tensor:
+    """Post-synaptic potential: causal convolution of ``x`` with ``kernel`` along ``dim``.
+
+    psp(x)[t] = Σ_k kernel[k]·x[t − k] (Ts = 1 ms), zero history before t = 0. Differentiable in
+    ``x``; the kernel is a constant.
+
+    Args:
+        x: spikes (or any signal), time along ``dim`` in 1 ms steps.
+        kernel: 1-D tensor, kernel[k] = response k steps after an input, e.g.
+            :func:`spikegyro.snn.kernels.srm_kernel`.
+        dim: the time axis.
+
+    Returns:
+        Tensor shaped like ``x``; its storage is time-major (a permuted view when ``dim`` is not 0).
+    """
+    if kernel.dim() != 1 or kernel.numel() == 0:
+        raise ValueError(f"kernel must be a non-empty 1-D tensor, got shape {tuple(kernel.shape)}")
+    rows = _PSPFunction.apply(_time_rows(x, dim), kernel)
+    return _from_time_rows(rows, x, dim)
+
+
+def surrogate_gradient(
+    potential: torch.Tensor, theta: float, scale_rho: float, tau_rho: float = TAU_RHO
+) -> torch.Tensor:
+    """Spike pdf ρ(u) = (scale_rho/θ)·exp(−|u − θ|/(tau_rho·θ)), used as ∂spike/∂u (per unit u)."""
+    rho = (potential - theta).abs_().mul_(-1.0 / (tau_rho * theta)).exp_()
+    return rho.mul_(scale_rho / theta)
+
+
+def _fire_rows(
+    rows: torch.Tensor, theta: float, ref_kernel: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Spike recursion on a (T, M) potential; returns (spikes, potential with refractoriness).
+
+    At step t every neuron with u[t] ≥ θ spikes, and ν[k]·spike is added to its u[t + k] for
+    k = 1 … len(ν) − 1 (ν[0] must be 0). Whole-row operations only; the loop is over time.
+    """
+    if ref_kernel.dim() != 1 or ref_kernel.numel() == 0 or float(ref_kernel[0]) != 0.0:
+        raise ValueError("ref_kernel must be a 1-D tensor with ref_kernel[0] == 0")
+    potential = torch.empty(rows.shape, dtype=rows.dtype, device=rows.device)
+    potential.copy_(rows)
+    spikes = torch.empty_like(potential)
+    taps = ref_kernel[1:].to(device=rows.device, dtype=rows.dtype)[:, None]
+    steps = rows.shape[0]
+    for t in range(steps):
+        torch.ge(potential[t], theta, out=spikes[t])
+        ahead = min(taps.shape[0], steps - 1 - t)
+        if ahead:
+            potential[t + 1 : t + 1 + ahead].addcmul_(taps[:ahead], spikes[t])
+    return spikes, potential
+
+
+class _SpikeFunction(torch.autograd.Function):
+    """Threshold + refractory recursion forward; surrogate ρ(u) backward, none through ν."""
+
+    @staticmethod
+    def forward(
+        ctx,
+        rows: torch.Tensor,
+        theta: float,
+        ref_kernel: torch.Tensor,
+        scale_rho: float,
+        tau_rho: float,
+    ) -> torch.Tensor:
+        spikes, potential = _fire_rows(rows, theta, ref_kernel)
+        ctx.save_for_backward(potential)
+        ctx.constants = (theta, scale_rho, tau_rho)
+        return spikes
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
+        (potential,) = ctx.saved_tensors
+        return surrogate_gradient(potential, *ctx.constants).mul_(grad), None, None, None, None
+
+
+def spike_fn(
+    potential: torch.Tensor,
+    theta: float,
+    ref_kernel: torch.Tensor,
+    scale_rho: float,
+    tau_rho: float = TAU_RHO,
+    dim: int = -1,
+) -> torch.Tensor:
+    """Spikes of SRM neurons driven by the sub-threshold ``potential``, with SLAYER's gradient.
+
+    Forward: a neuron spikes (output 1) at step t when its potential u[t] ≥ θ, and the refractory
+    kernel ν is added to its own potential at the following steps. Backward: ∂L/∂potential =
+    ∂L/∂spikes · ρ(u), ρ from :func:`surrogate_gradient` at the potential including refractory
+    responses; no gradient flows through the refractory feedback.
+
+    Args:
+        potential: membrane potential before refractory responses, time along ``dim`` (1 ms).
+        theta: threshold θ; ref_kernel: ν from :func:`spikegyro.snn.kernels.refractory_kernel`.
+        scale_rho, tau_rho: surrogate height (relative to 1/θ) and width (relative to θ).
+        dim: the time axis.
+
+    Returns:
+        0/1 spikes shaped like ``potential`` (time-major storage).
+    """
+    rows = _SpikeFunction.apply(_time_rows(potential, dim), theta, ref_kernel, scale_rho, tau_rho)
+    return _from_time_rows(rows, potential, dim)
+
+
+@torch.no_grad()
+def fire(
+    potential: torch.Tensor, theta: float, ref_kernel: torch.Tensor, dim: int = -1
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Forward of :func:`spike_fn` without gradients; returns (spikes, potential with ν added)."""
+    spikes, full = _fire_rows(_time_rows(potential, dim), theta, ref_kernel)
+    return _from_time_rows(spikes, potential, dim), _from_time_rows(full, potential, dim)
+
+
+def _is_binary(x: torch.Tensor) -> bool:
+    return bool(((x == 0) | (x == 1)).all())
+
+
+def _pack_binary(x: torch.Tensor) -> tuple[torch.Tensor, torch.dtype | None]:
+    # Convolutions save their input for the weight gradient; spikes fit in one byte instead of 4.
+    if x.is_floating_point() and x.numel() > 4096 and _is_binary(x):
+        return x.to(torch.bool), x.dtype
+    return x, None
+
+
+def _unpack_binary(packed: tuple[torch.Tensor, torch.dtype | None]) -> torch.Tensor:
+    x, dtype = packed
+    return x if dtype is None else x.to(dtype)
+
+
+def conv_over_time(
+    x: torch.Tensor, weight: torch.Tensor, stride: int = 1, padding: int = 0
+) -> torch.Tensor:
+    """2-D convolution applied at every time step at once (time folded into the batch).
+
+    Args:
+        x: (T, N, C_in, H, W), time-major.
+        weight: (C_out, C_in, kH, kW).
+
+    Returns:
+        (T, N, C_out, H_out, W_out). When ``x`` holds 0/1 spikes it is kept for the backward pass
+        as booleans (4× less memory).
+    """
+    steps, batch = x.shape[:2]
+    with torch.autograd.graph.saved_tensors_hooks(_pack_binary, _unpack_binary):
+        y = F.conv2d(x.reshape(steps * batch, *x.shape[2:]), weight, stride=stride, padding=padding)
+    return y.reshape(steps, batch, *y.shape[1:])

@@ -1,0 +1,130 @@
+"""SRM spiking layers (thin modules over :mod:`spikegyro.snn.functional`).
+
+Tensor layout: spike trains are ``(N, C, H, W, T)`` for conv layers and ``(N, C, T)`` for dense
+ones, time last in 1 ms steps, as in SLAYER and the official code. Every layer returns a tensor
+whose *storage* is time-major (a permuted view): the next layer folds time into the batch and
+filters along time without copying.
+
+A layer computes s_out = spike(conv(psp(s_in))) like the official model. Convolution (over
+space) and PSP (over time) are linear and commute, so we evaluate spike(psp(conv(s_in))): the
+convolution then sees 0/1 spikes, which it keeps for the backward pass as booleans.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from spikegyro.snn.functional import TAU_RHO, conv_over_time, psp, spike_fn
+from spikegyro.snn.kernels import refractory_kernel, srm_kernel
+
+
+@dataclass(frozen=True)
+class SRMParams:
+    """Neuron parameters of one layer (times in ms, potentials in weight units).
+
+    Attributes:
+        tau_s: synaptic time constant τs of the PSP kernel ε.
+        theta: threshold θ; ``None`` makes a non-spiking layer whose output is the PSP itself.
+        tau_r: refractory time constant τr of ν.
+        scale_rho: surrogate height (SLAYER's scaleRho); tau_rho: its width relative to θ.
+        scale_ref: refractory depth relative to θ (ν[1] = −scale_ref·θ).
+    """
+
+    tau_s: float
+    theta: float | None = None
+    tau_r: float = 1.0
+    scale_rho: float = 1.0
+    tau_rho: float = TAU_RHO
+    scale_ref: float = 2.0
+
+    @property
+    def spiking(self) -> bool:
+        return self.theta is not None
+
+
+class _SRMLayer(nn.Module):
+    """Weights plus the layer's kernels as buffers (saved in checkpoints, replaceable on load)."""
+
+    def __init__(self, params: SRMParams, weight_shape: tuple[int, ...]) -> None:
+        super().__init__()
+        self.params = params
+        self.weight = nn.Parameter(torch.empty(weight_shape))
+        self.register_buffer("srm_kernel", srm_kernel(params.tau_s))
+        if params.spiking:
+            self.register_buffer(
+                "ref_kernel",
+                refractory_kernel(params.theta, params.tau_r, scale_ref=params.scale_ref),
+            )
+        self.reset_parameters()
+
+    def reset_parameters(self, gain: float = 1.0) -> None:
+        """Uniform weights in ±gain/√fan_in (PyTorch's default conv init when gain = 1)."""
+        fan_in = math.prod(self.weight.shape[1:])
+        bound = gain / math.sqrt(fan_in)
+        with torch.no_grad():
+            self.weight.uniform_(-bound, bound)
+
+    def _respond(self, current: torch.Tensor) -> torch.Tensor:
+        """PSP then spikes of a time-major (T, …) synaptic input."""
+        potential = psp(current, self.srm_kernel, dim=0)
+        if not self.params.spiking:
+            return potential
+        p = self.params
+        return spike_fn(potential, p.theta, self.ref_kernel, p.scale_rho, p.tau_rho, dim=0)
+
+
+class SRMConv(_SRMLayer):
+    """Spiking 2-D convolution, no bias: (N, C_in, H, W, T) → (N, C_out, H', W', T)."""
+
+    def __init__(
+        self,
+        in_channels: int,
+        out_channels: int,
+        params: SRMParams,
+        kernel_size: int = 3,
+        stride: int = 1,
+        padding: int = 0,
+    ) -> None:
+        self.stride = stride
+        self.padding = padding
+        super().__init__(params, (out_channels, in_channels, kernel_size, kernel_size))
+
+    def output_size(self, height: int, width: int) -> tuple[int, int]:
+        """Spatial size (px) of the output map for an input of ``height`` × ``width`` px."""
+        k = self.weight.shape[-1]
+
+        def size(n: int) -> int:
+            return (n + 2 * self.padding - k) // self.stride + 1
+
+        return size(height), size(width)
+
+    def forward(self, spikes: torch.Tensor) -> torch.Tensor:
+        current = conv_over_time(
+            spikes.permute(4, 0, 1, 2, 3), self.weight, self.stride, self.padding
+        )
+        return self._respond(current).permute(1, 2, 3, 4, 0)
+
+
+class SRMDense(_SRMLayer):
+    """Fully connected SRM layer, no bias: (N, C_in, T) → (N, C_out, T).
+
+    With ``params.theta = None`` it is the non-spiking readout: the PSP of the weighted input.
+    """
+
+    def __init__(self, in_features: int, out_features: int, params: SRMParams) -> None:
+        super().__init__(params, (out_features, in_features))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        current = torch.nn.functional.linear(x.permute(2, 0, 1), self.weight)
+        return self._respond(current).permute(1, 2, 0)
+
+
+class GASP(nn.Module):
+    """Global average spike pooling: spatial mean at each step, (N, C, H, W, T) → (N, C, T)."""
+
+    def forward(self, spikes: torch.Tensor) -> torch.Tensor:
+        return spikes.mean(dim=(2, 3))
