@@ -1,0 +1,389 @@
+"""The dataset generator: deterministic sequences, local or Dask-parallel, resumable and atomic.
+
+Layout::
+
+    DIR/meta.json                      configuration, version, per-split counts, statistics
+    DIR/{train,val,test}/seq_000123.h5 one sequence each (official layout + attributes)
+
+Every sequence is a pure function of (configuration, seed, split, index): its random generator is
+``SeedSequence([seed, split number, index])``, so the files are identical whatever the number of
+workers or machines, and adding sequences later leaves the existing ones unchanged.
+
+Scenes are split **by panorama**: the bundled photographs 10 train / 1 val / 1 test (see
+:data:`spikegyro.sim.panorama.BUNDLED_SPLITS`), a ``--panoramas`` folder 90/5/5 by default.
+A fraction of sequences (``procedural_fraction``) uses a procedural panorama generated from the
+sequence's own seed stream, which is distinct for every (split, index), so no procedural scene is
+shared across splits. Photographs get fine 1/f detail (``detail_strength``) and every sequence
+a uniformly random start orientation, i.e. a random orientation of the panorama.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field, replace
+from functools import lru_cache
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from spikegyro import __version__
+from spikegyro.errors import InputError
+from spikegyro.events.core import GyroTrace, Recording
+from spikegyro.events.io import atomic_path, read_recording, write_recording
+from spikegyro.sim.camera import Camera
+from spikegyro.sim.esim import EventSimConfig, simulate
+from spikegyro.sim.panorama import (
+    Panorama,
+    bundled_panorama_paths,
+    list_panoramas,
+    load_panorama,
+    split_panoramas,
+)
+from spikegyro.sim.procedural import add_detail, panorama_width, procedural_panorama
+from spikegyro.sim.trajectory import TrajectoryConfig, random_trajectory
+
+SPLITS = ("train", "val", "test")
+WINDOW_US = 100_000
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Everything that defines a dataset besides the seed and the number of sequences.
+
+    Attributes:
+        duration_ms: length of each sequence, milliseconds.
+        camera: sensor intrinsics.
+        trajectory: random-rotation distribution.
+        events: sensor model; its nominal thresholds are replaced per sequence by draws from
+            N(contrast_mean, contrast_std²) (ON and OFF independently, clamped at min_contrast).
+        contrast_mean, contrast_std: per-sequence threshold distribution, log units.
+        panoramas: folder of equirectangular images, or None for the bundled photographs.
+        procedural_fraction: share of sequences on procedural panoramas.
+        detail_strength: log-intensity std of the smooth texture added to photographs.
+        val_fraction, test_fraction: share of sequences (and of folder panoramas) per split.
+    """
+
+    duration_ms: int = 500
+    camera: Camera = field(default_factory=Camera)
+    trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+    events: EventSimConfig = field(default_factory=EventSimConfig)
+    contrast_mean: float = 0.45
+    contrast_std: float = 0.05
+    panoramas: str | None = None
+    procedural_fraction: float = 0.3
+    detail_strength: float = 0.4
+    val_fraction: float = 0.05
+    test_fraction: float = 0.05
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-serialisable dict (round-trips through :meth:`from_dict`)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> SimConfig:
+        """Inverse of :meth:`to_dict`."""
+        data = dict(data)
+        data["camera"] = Camera(**data["camera"])
+        data["trajectory"] = TrajectoryConfig(**data["trajectory"])
+        data["events"] = EventSimConfig(**data["events"])
+        return cls(**data)
+
+    def panorama_splits(self) -> dict[str, list[Path]]:
+        """The photographs available to each split."""
+        paths = (
+            bundled_panorama_paths() if self.panoramas is None else list_panoramas(self.panoramas)
+        )
+        return split_panoramas(paths, (self.val_fraction, self.test_fraction))
+
+
+def split_counts(sequences: int, val_fraction: float = 0.05, test_fraction: float = 0.05):
+    """Sequences per split: val and test get their fractions (at least 1 each from 3 on)."""
+    if sequences < 3:
+        return {"train": sequences, "val": 0, "test": 0}
+    n_val = max(1, round(sequences * val_fraction))
+    n_test = max(1, round(sequences * test_fraction))
+    return {"train": sequences - n_val - n_test, "val": n_val, "test": n_test}
+
+
+def sequence_rng(seed: int, split: str, index: int) -> np.random.Generator:
+    """The generator of one sequence, independent of every other (split, index)."""
+    return np.random.default_rng(np.random.SeedSequence([seed, SPLITS.index(split), index]))
+
+
+@lru_cache(maxsize=16)
+def _photo(path: str) -> Panorama:
+    return load_panorama(path)
+
+
+@lru_cache(maxsize=4)
+def _splits(config: SimConfig) -> dict[str, list[Path]]:
+    return config.panorama_splits()
+
+
+def simulate_sequence(config: SimConfig, index: int, seed: int, split: str = "train") -> Recording:
+    """Simulate sequence ``index`` of ``split``: a pure function of its arguments.
+
+    Used by ``spikegyro simulate`` and usable for on-the-fly training data.
+    """
+    if split not in SPLITS:
+        raise InputError(f"split '{split}': must be one of {', '.join(SPLITS)}.")
+    rng = sequence_rng(seed, split, index)
+    floor = config.events.min_contrast
+    c_on, c_off = np.maximum(rng.normal(config.contrast_mean, config.contrast_std, 2), floor)
+    photos = _splits(config)[split]
+    width = panorama_width(config.camera)
+    if not photos or rng.random() < config.procedural_fraction:
+        panorama = procedural_panorama(rng, width, name=f"procedural/{split}/{index}")
+    else:
+        photo = _photo(str(photos[int(rng.integers(len(photos)))]))
+        panorama = add_detail(photo, rng, config.detail_strength, width)
+    duration_s = config.duration_ms / 1000.0
+    trajectory = random_trajectory(rng, duration_s, config.trajectory)
+    events_config = replace(config.events, contrast_on=float(c_on), contrast_off=float(c_off))
+    rec = simulate(panorama, trajectory, config.camera, events_config, rng, duration_s)
+    windows = np.bincount(
+        np.minimum(rec.events.t // WINDOW_US, max(0, config.duration_ms // 100 - 1)),
+        minlength=config.duration_ms // 100,
+    )
+    attrs = {
+        **rec.attrs,
+        "contrast_on": float(c_on),
+        "contrast_off": float(c_off),
+        "seed": int(seed),
+        "split": split,
+        "index": int(index),
+        "r0": trajectory.r0.ravel().tolist(),
+        "events_per_100ms": windows.tolist(),
+        "omega_units": "rad/s",
+        "time_units": "us",
+        "generator": f"spikegyro {__version__}",
+    }
+    return Recording(events=rec.events, gyro=rec.gyro, attrs=attrs)
+
+
+def sequence_path(out: Path, split: str, index: int) -> Path:
+    """Where sequence ``index`` of ``split`` lives."""
+    return Path(out) / split / f"seq_{index:06d}.h5"
+
+
+def _summary(rec: Recording) -> dict[str, Any]:
+    speed = np.degrees(np.linalg.norm(rec.gyro.omega, axis=1)) if rec.gyro is not None else []
+    return {
+        "events": len(rec.events),
+        "windows": list(rec.attrs["events_per_100ms"]),
+        "speed_deg_s": float(np.mean(speed)),
+    }
+
+
+def _summary_from_file(path: Path) -> dict[str, Any]:
+    with h5py.File(path, "r") as f:
+        speed = np.degrees(np.linalg.norm(f["ang_xyz"][()], axis=1))
+        return {
+            "events": int(f["ev_ts"].shape[0]),
+            "windows": [int(v) for v in f.attrs["events_per_100ms"]],
+            "speed_deg_s": float(speed.mean()),
+        }
+
+
+def _work(config_dict: dict[str, Any], seed: int, split: str, index: int) -> Recording:
+    """One task (in a worker process or a Dask worker): single-threaded simulation."""
+    import torch
+
+    torch.set_num_threads(1)
+    return simulate_sequence(SimConfig.from_dict(config_dict), index, seed, split)
+
+
+def _statistics(summaries: list[dict[str, Any]]) -> dict[str, Any]:
+    windows = np.array([w for s in summaries for w in s["windows"]], dtype=np.int64)
+    speeds = np.array([s["speed_deg_s"] for s in summaries])
+    if windows.size == 0:
+        return {}
+    q = np.percentile(windows, [0, 5, 25, 50, 75, 95, 100])
+    return {
+        "events_total": int(sum(s["events"] for s in summaries)),
+        "events_per_100ms": {
+            "mean": float(windows.mean()),
+            **{f"p{p}": float(v) for p, v in zip((0, 5, 25, 50, 75, 95, 100), q, strict=True)},
+            "fraction_below_1000": float((windows < 1000).mean()),
+            "fraction_below_10000": float((windows < 10000).mean()),
+        },
+        "mean_omega_norm_deg_s": {
+            "mean": float(speeds.mean()),
+            "p99": float(np.percentile(speeds, 99)),
+            "max": float(speeds.max()),
+            "fraction_above_800": float((speeds > 800).mean()),
+        },
+    }
+
+
+def _write_meta(out: Path, meta: dict[str, Any]) -> None:
+    with atomic_path(out / "meta.json") as tmp:
+        tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+
+
+def _check_resume(out: Path, meta: dict[str, Any]) -> None:
+    path = out / "meta.json"
+    if not path.exists():
+        return
+    old = json.loads(path.read_text())
+    if old.get("config") != meta["config"] or old.get("seed") != meta["seed"]:
+        raise InputError(
+            f"{path}: this folder holds a dataset made with other options or another seed; "
+            "choose another --out or delete the folder."
+        )
+
+
+Runner = Callable[[list[tuple[str, int]]], Iterator[tuple[str, int, Recording]]]
+
+
+def _local_runner(config: SimConfig, seed: int, workers: int) -> Runner:
+    config_dict = config.to_dict()
+
+    def run(tasks: list[tuple[str, int]]) -> Iterator[tuple[str, int, Recording]]:
+        if workers <= 1:
+            for split, index in tasks:
+                yield split, index, _work(config_dict, seed, split, index)
+            return
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            futures = {pool.submit(_work, config_dict, seed, s, i): (s, i) for s, i in tasks}
+            for fut in as_completed(futures):
+                yield (*futures[fut], fut.result())
+
+    return run
+
+
+def _dask_runner(config: SimConfig, seed: int, scheduler: str) -> Runner:
+    from distributed import Client
+    from distributed import as_completed as dask_completed
+
+    config_dict = config.to_dict()
+
+    def run(tasks: list[tuple[str, int]]) -> Iterator[tuple[str, int, Recording]]:
+        with Client(scheduler) as client:
+            futures = {
+                client.submit(_work, config_dict, seed, s, i, key=f"seq-{s}-{i}-{seed}"): (s, i)
+                for s, i in tasks
+            }
+            for fut in dask_completed(futures):
+                yield (*futures.pop(fut), fut.result())
+                fut.release()
+
+    return run
+
+
+def generate_dataset(
+    out: str | Path,
+    sequences: int,
+    seed: int = 0,
+    config: SimConfig | None = None,
+    workers: int = 1,
+    scheduler: str | None = None,
+    on_sequence: Callable[[int, int, int], None] | None = None,
+) -> dict[str, Any]:
+    """Write ``sequences`` sequences under ``out`` and return the metadata written to meta.json.
+
+    Finished files are skipped (resume); files and meta.json are written atomically.
+
+    Args:
+        out: dataset folder.
+        sequences: total number over train/val/test.
+        seed: dataset seed.
+        config: simulation options (default :class:`SimConfig`).
+        workers: local processes (ignored with ``scheduler``).
+        scheduler: address of a Dask distributed scheduler; workers must see the same
+            ``config.panoramas`` path, the client writes the files.
+        on_sequence: progress callback (done, total, events of the finished sequence).
+    """
+    config = config or SimConfig()
+    out = Path(out)
+    counts = split_counts(sequences, config.val_fraction, config.test_fraction)
+    splits = _splits(config)
+    meta: dict[str, Any] = {
+        "generator": "spikegyro simulate",
+        "version": __version__,
+        "seed": int(seed),
+        "sequences": counts,
+        "config": config.to_dict(),
+        "panoramas": {s: [p.stem for p in splits[s]] for s in SPLITS},
+        "layout": "DIR/{split}/seq_NNNNNN.h5; datasets ev_xy, ev_ts (us), ev_pol, ang_xyz "
+        "(rad/s), ang_ts (us); attributes describe the sensor and the sequence",
+        "complete": False,
+    }
+    _check_resume(out, meta)
+    out.mkdir(parents=True, exist_ok=True)
+    _write_meta(out, meta)
+    summaries: list[dict[str, Any]] = []
+    tasks = []
+    for split in SPLITS:
+        for index in range(counts[split]):
+            path = sequence_path(out, split, index)
+            if path.exists():
+                summaries.append(_summary_from_file(path))
+            else:
+                tasks.append((split, index))
+    run = (
+        _dask_runner(config, seed, scheduler) if scheduler else _local_runner(config, seed, workers)
+    )
+    done = len(summaries)
+    for split, index, rec in run(tasks):
+        write_recording(sequence_path(out, split, index), rec)
+        summaries.append(_summary(rec))
+        done += 1
+        if on_sequence is not None:
+            on_sequence(done, sequences, len(rec.events))
+    meta.update(statistics=_statistics(summaries), complete=True)
+    _write_meta(out, meta)
+    return meta
+
+
+def export_official(
+    src: str | Path,
+    out: str | Path,
+    window_ms: int = 100,
+    on_file: Callable[[], None] | None = None,
+) -> dict[str, int]:
+    """Cut every sequence of dataset ``src`` into ``window_ms`` sample files under ``out``.
+
+    Each sample is in exactly the official layout: events with t in [t0, t0 + window) shifted to
+    start at 0 µs; ``ang_ts`` = 1000, 2000, ..., window (µs, the end of each 1 ms bin) and
+    ``ang_xyz`` the ground truth there (rad/s). Files are ``out/{split}/NNNNNNN.h5``, numbered
+    sequence index x samples per sequence + window index, with the source in attributes.
+    Returns the number of samples per split.
+    """
+    src, out = Path(src), Path(out)
+    if not (src / "meta.json").exists():
+        raise InputError(f"{src}: no meta.json; give a folder made by 'spikegyro simulate'.")
+    window_us = window_ms * 1000
+    written = {}
+    for split in SPLITS:
+        files = sorted((src / split).glob("seq_*.h5")) if (src / split).is_dir() else []
+        written[split] = 0
+        for path in files:
+            rec = read_recording(path)
+            if rec.gyro is None:
+                raise InputError(f"{path}: no ground truth (ang_xyz); cannot export it.")
+            per_seq = int(rec.gyro.t[-1] // window_us)
+            index = int(rec.attrs.get("index", path.stem.split("_")[-1]))
+            for k in range(per_seq):
+                t0 = k * window_us
+                ang_ts = np.arange(1, window_ms + 1, dtype=np.int64) * 1000
+                gyro = GyroTrace.from_arrays(ang_ts, rec.gyro.interpolate(t0 + ang_ts))
+                sample = Recording(
+                    events=rec.events.slice_time(t0, t0 + window_us).shift_time(-t0),
+                    gyro=gyro,
+                    attrs={**rec.attrs, "source": path.name, "window": k, "t0_us": t0},
+                )
+                write_recording(out / split / f"{index * per_seq + k:07d}.h5", sample)
+                written[split] += 1
+            if on_file is not None:
+                on_file()
+    meta = json.loads((src / "meta.json").read_text())
+    meta["official_export"] = {"window_ms": window_ms, "samples": written, "source": str(src)}
+    out.mkdir(parents=True, exist_ok=True)
+    _write_meta(out, meta)
+    return written
