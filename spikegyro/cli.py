@@ -14,6 +14,7 @@ from spikegyro import __version__
 from spikegyro.errors import InputError
 from spikegyro.evaluate import commands as evaluate_commands
 from spikegyro.events import commands as events_commands
+from spikegyro.sim import commands as sim_commands
 from spikegyro.train import commands as train_commands
 
 app = typer.Typer(
@@ -39,6 +40,9 @@ def _root(
 
 
 app.command("info")(events_commands.info)
+app.command("simulate")(sim_commands.simulate_dataset)
+app.command("export-official")(sim_commands.export_official_command)
+app.command("show")(sim_commands.show)
 app.command("evaluate")(evaluate_commands.evaluate)
 app.command("report")(evaluate_commands.report)
 app.command("train")(train_commands.train_command)

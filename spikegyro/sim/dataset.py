@@ -376,7 +376,12 @@ def export_official(
                 sample = Recording(
                     events=rec.events.slice_time(t0, t0 + window_us).shift_time(-t0),
                     gyro=gyro,
-                    attrs={**rec.attrs, "source": path.name, "window": k, "t0_us": t0},
+                    attrs={
+                        **{a: v for a, v in rec.attrs.items() if a != "events_per_100ms"},
+                        "source": path.name,
+                        "window": k,
+                        "t0_us": t0,
+                    },
                 )
                 write_recording(out / split / f"{index * per_seq + k:07d}.h5", sample)
                 written[split] += 1

@@ -60,6 +60,19 @@ def so3_log(r: np.ndarray) -> np.ndarray:
     return w * scale[..., None]
 
 
+def _prefix_products(mats: np.ndarray) -> np.ndarray:
+    """Running products M_0, M_0 M_1, M_0 M_1 M_2, ... of (n, 3, 3) matrices.
+
+    A Hillis-Steele scan: log2(n) batched matrix products instead of n Python-level ones.
+    """
+    out = mats.copy()
+    shift = 1
+    while shift < out.shape[0]:
+        out[shift:] = out[:-shift] @ out[shift:]
+        shift *= 2
+    return out
+
+
 @dataclass(frozen=True)
 class Trajectory:
     """A rotation-only camera motion.
@@ -94,12 +107,8 @@ class Trajectory:
         h = self.duration_s / n if self.duration_s > 0 else self.step_s
         object.__setattr__(self, "step_s", h)
         mids = (np.arange(n) + 0.5) * h
-        steps = so3_exp(self.omega_at(mids) * h)
-        grid = np.empty((n + 1, 3, 3))
-        grid[0] = self.r0
-        for k in range(n):  # a sequential product; n is small (5000 for 0.5 s)
-            grid[k + 1] = grid[k] @ steps[k]
-        object.__setattr__(self, "_grid", grid)
+        grid = np.concatenate([self.r0[None], so3_exp(self.omega_at(mids) * h)])
+        object.__setattr__(self, "_grid", _prefix_products(grid))
 
     @classmethod
     def constant(

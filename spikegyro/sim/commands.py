@@ -1,0 +1,154 @@
+"""Commands ``simulate``, ``export-official`` and ``show``."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+from spikegyro.errors import InputError
+from spikegyro.events.io import read_recording
+from spikegyro.events.plot import plot_events_and_omega
+from spikegyro.sim.camera import Camera
+from spikegyro.sim.dataset import SimConfig, export_official, generate_dataset
+
+
+def _progress() -> Progress:
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[rate]}"),
+        TimeElapsedColumn(),
+        TextColumn("ETA"),
+        TimeRemainingColumn(),
+    )
+
+
+def _camera(width, height, fx, fy, cx, cy) -> Camera:
+    base = (
+        Camera()
+        if width is None and height is None
+        else Camera.scaled(width or Camera.width, height or Camera.height)
+    )
+    return Camera(
+        base.width,
+        base.height,
+        base.fx if fx is None else fx,
+        base.fy if fy is None else fy,
+        base.cx if cx is None else cx,
+        base.cy if cy is None else cy,
+    )
+
+
+def simulate_dataset(
+    out: Path = typer.Option(..., "--out", help="Dataset folder (created; resumed if present)."),
+    sequences: int = typer.Option(..., "--sequences", min=1, help="Sequences over all splits."),
+    duration_ms: int = typer.Option(500, "--duration-ms", min=100, help="Sequence length, ms."),
+    seed: int = typer.Option(0, "--seed", help="Dataset seed; same seed, same files."),
+    panoramas: Path = typer.Option(
+        None, "--panoramas", help="Folder of equirectangular images (default: bundled 12)."
+    ),
+    workers: int = typer.Option(1, "--workers", min=1, help="Local worker processes."),
+    scheduler: str = typer.Option(
+        None, "--scheduler", help="Dask scheduler address, e.g. tcp://host:8786."
+    ),
+    procedural_fraction: float = typer.Option(
+        0.3, min=0.0, max=1.0, help="Share of sequences on procedural panoramas."
+    ),
+    detail: float = typer.Option(
+        0.4, min=0.0, help="Log-intensity std of the texture added to photographs."
+    ),
+    contrast_mean: float = typer.Option(0.45, help="Mean contrast threshold (log units)."),
+    contrast_std: float = typer.Option(0.05, help="Per-sequence threshold spread."),
+    width: int = typer.Option(None, help="Sensor width, px (default 240)."),
+    height: int = typer.Option(None, help="Sensor height, px (default 180)."),
+    fx: float = typer.Option(None, help="Focal length x, px (default 200, scaled with width)."),
+    fy: float = typer.Option(None, help="Focal length y, px."),
+    cx: float = typer.Option(None, help="Principal point x, px."),
+    cy: float = typer.Option(None, help="Principal point y, px."),
+) -> None:
+    """Simulate a dataset of rotating-event-camera sequences with exact angular velocity."""
+    if panoramas is not None and not panoramas.is_dir():
+        raise InputError(f"{panoramas}: --panoramas must be a folder of images.")
+    config = SimConfig(
+        duration_ms=duration_ms,
+        camera=_camera(width, height, fx, fy, cx, cy),
+        contrast_mean=contrast_mean,
+        contrast_std=contrast_std,
+        panoramas=None if panoramas is None else str(panoramas.resolve()),
+        procedural_fraction=procedural_fraction,
+        detail_strength=detail,
+    )
+    console = Console(stderr=True)
+    start = time.perf_counter()
+    events = 0
+    with _progress() as progress:
+        task = progress.add_task("simulating", total=sequences, rate="")
+
+        def update(done: int, total: int, n_events: int) -> None:
+            nonlocal events
+            events += n_events
+            rate = events / max(time.perf_counter() - start, 1e-9)
+            progress.update(task, completed=done, rate=f"{rate / 1e6:.2f} Mev/s")
+
+        meta = generate_dataset(out, sequences, seed, config, workers, scheduler, update)
+    elapsed = time.perf_counter() - start
+    stats = meta.get("statistics", {})
+    per_window = stats.get("events_per_100ms", {})
+    console.print(
+        f"{out}: {meta['sequences']} sequences, {stats.get('events_total', 0):,} events; "
+        f"events per 100 ms median {per_window.get('p50', 0):,.0f}, "
+        f"5th percentile {per_window.get('p5', 0):,.0f}; "
+        f"mean |omega| {stats.get('mean_omega_norm_deg_s', {}).get('mean', 0):.0f} deg/s; "
+        f"{elapsed:.1f} s"
+    )
+
+
+def export_official_command(
+    src: Path = typer.Argument(..., help="Dataset folder made by 'spikegyro simulate'."),
+    out: Path = typer.Argument(..., help="Output folder of 100 ms sample files."),
+    window_ms: int = typer.Option(100, "--window-ms", min=1, help="Sample length, ms."),
+) -> None:
+    """Cut every sequence into window-long sample files in exactly the official layout."""
+    total = sum(1 for _ in src.glob("*/seq_*.h5"))
+    with _progress() as progress:
+        task = progress.add_task("exporting", total=total, rate="")
+        written = export_official(src, out, window_ms, lambda: progress.advance(task))
+    Console(stderr=True).print(f"{out}: {written} samples of {window_ms} ms")
+
+
+def show(
+    path: Path = typer.Argument(..., help="Event file with ground truth (.h5, .npz, ...)."),
+    out: Path = typer.Option(..., "--out", help="Figure path (.png, .pdf, .svg)."),
+    start_ms: float = typer.Option(0.0, "--start-ms", help="Window start, ms from t = 0."),
+    window_ms: float = typer.Option(100.0, "--window-ms", help="Window length, ms."),
+    max_events: int = typer.Option(40_000, help="Draw at most this many events."),
+) -> None:
+    """Plot a window's events in space-time (ON red, OFF blue) above omega(t) on 3 axes."""
+    rec = read_recording(path)
+    t0, t1 = round(start_ms * 1000), round((start_ms + window_ms) * 1000)
+    events = rec.events.slice_time(t0, t1)
+    if rec.gyro is not None:
+        gyro = rec.gyro.slice_time(t0, t1 + 1)
+        omega_t, omega = gyro.t / 1e6, gyro.omega
+    else:
+        omega_t, omega = None, None
+    if len(events) == 0 and omega is None:
+        raise InputError(f"{path}: nothing in [{start_ms}, {start_ms + window_ms}) ms to show.")
+    title = f"{path.name}  [{start_ms:g}, {start_ms + window_ms:g}) ms"
+    plot_events_and_omega(
+        events, omega_t, omega, out=out, title=title, max_events=max_events, t0_s=t0 / 1e6
+    )
+    Console(stderr=True).print(f"{out}: {len(events):,} events, {np.size(omega_t)} omega samples")

@@ -1,0 +1,146 @@
+"""Dataset generator: determinism across workers and Dask, resume, splits, official export, CLI."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from spikegyro.cli import app
+from spikegyro.errors import InputError
+from spikegyro.events.io import OFFICIAL_KEYS, read_recording
+from spikegyro.sim.camera import Camera
+from spikegyro.sim.dataset import (
+    SimConfig,
+    export_official,
+    generate_dataset,
+    sequence_path,
+    simulate_sequence,
+    split_counts,
+)
+from spikegyro.sim.panorama import bundled_panorama_paths, split_panoramas
+
+TINY = SimConfig(duration_ms=200, camera=Camera.scaled(48, 36))
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*.h5"))}
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("serial")
+    generate_dataset(out, 4, seed=5, config=TINY, workers=1)
+    return out
+
+
+def test_same_seed_gives_identical_files_with_process_workers(serial, tmp_path):
+    generate_dataset(tmp_path, 4, seed=5, config=TINY, workers=2)
+    assert _files(tmp_path) == _files(serial)
+    assert (tmp_path / "meta.json").read_bytes() == (serial / "meta.json").read_bytes()
+
+
+def test_dask_cluster_gives_identical_files(serial, tmp_path):
+    from distributed import LocalCluster
+
+    with LocalCluster(
+        n_workers=2, processes=False, threads_per_worker=1, dashboard_address=None
+    ) as cluster:
+        generate_dataset(tmp_path, 4, seed=5, config=TINY, scheduler=cluster.scheduler_address)
+    assert _files(tmp_path) == _files(serial)
+
+
+def test_resume_skips_finished_files_and_rejects_other_options(serial, tmp_path):
+    generate_dataset(tmp_path, 4, seed=5, config=TINY)
+    victim = sequence_path(tmp_path, "train", 1)
+    victim.unlink()
+    kept = sequence_path(tmp_path, "val", 0)
+    stamp = kept.stat().st_mtime_ns
+    calls = []
+    generate_dataset(tmp_path, 4, seed=5, config=TINY, on_sequence=lambda *a: calls.append(a))
+    assert len(calls) == 1 and kept.stat().st_mtime_ns == stamp
+    assert _files(tmp_path) == _files(serial)
+    with pytest.raises(InputError, match="other options"):
+        generate_dataset(tmp_path, 4, seed=6, config=TINY)
+
+
+def test_meta_and_sequence_files(serial):
+    meta = json.loads((serial / "meta.json").read_text())
+    assert meta["complete"] and meta["sequences"] == {"train": 2, "val": 1, "test": 1}
+    assert SimConfig.from_dict(meta["config"]) == TINY
+    stats = meta["statistics"]["events_per_100ms"]
+    assert stats["p0"] <= stats["p50"] <= stats["p100"]
+    rec = read_recording(sequence_path(serial, "train", 0))
+    assert rec.events.width == 48 and rec.attrs["fx"] == pytest.approx(40.0)
+    assert rec.attrs["seed"] == 5 and rec.attrs["split"] == "train"
+    assert list(rec.gyro.t[[0, -1]]) == [0, 200_000] and len(rec.gyro) == 201
+    assert sum(rec.attrs["events_per_100ms"]) == len(rec.events)
+    with h5py.File(sequence_path(serial, "train", 0)) as f:
+        assert set(OFFICIAL_KEYS) <= set(f)
+
+
+def test_sequences_depend_on_split_and_index_only():
+    a = simulate_sequence(TINY, 3, seed=1, split="val")
+    b = simulate_sequence(TINY, 3, seed=1, split="val")
+    c = simulate_sequence(TINY, 3, seed=1, split="test")
+    np.testing.assert_array_equal(a.events.t, b.events.t)
+    assert a.attrs["scene"] == b.attrs["scene"]
+    assert a.attrs["r0"] != c.attrs["r0"]
+
+
+def test_splits_are_disjoint_by_panorama(tmp_path):
+    bundled = split_panoramas(bundled_panorama_paths())
+    assert [len(bundled[s]) for s in ("train", "val", "test")] == [10, 1, 1]
+    for i in range(30):
+        Image.fromarray(np.full((8, 16), i * 8, np.uint8)).save(tmp_path / f"p{i:02d}.png")
+    folder = split_panoramas(sorted(tmp_path.glob("*.png")))
+    names = [{p.name for p in folder[s]} for s in ("train", "val", "test")]
+    assert sum(map(len, names)) == 30 and not (names[0] & names[1] or names[0] & names[2])
+    assert split_counts(10_000) == {"train": 9000, "val": 500, "test": 500}
+    # Sequences of a split draw only that split's photographs.
+    cfg = SimConfig(duration_ms=100, camera=Camera.scaled(32, 24), procedural_fraction=0.0)
+    scenes = {simulate_sequence(cfg, i, 0, "test").attrs["scene"] for i in range(3)}
+    assert scenes == {f"{bundled['test'][0].stem}+detail"}
+
+
+def test_official_export_round_trips(serial, tmp_path):
+    written = export_official(serial, tmp_path)
+    assert written == {"train": 4, "val": 2, "test": 2}  # 200 ms -> 2 samples each
+    src = read_recording(sequence_path(serial, "train", 1))
+    path = tmp_path / "train" / "0000003.h5"  # sequence 1, window 1
+    with h5py.File(path) as f:
+        assert set(OFFICIAL_KEYS) <= set(f)
+        ang_ts, ang_xyz = f["ang_ts"][()], f["ang_xyz"][()]
+        ev_ts, ev_xy, ev_pol = f["ev_ts"][()], f["ev_xy"][()], f["ev_pol"][()]
+    # What the official loader computes: one bin per gyro sample, 1 ms apart.
+    np.testing.assert_array_equal(ang_ts, np.arange(1, 101) * 1000)
+    assert ang_xyz.shape == (100, 3) and ev_xy.shape == (len(ev_ts), 2)
+    assert ev_ts.min() >= 0 and ev_ts.max() < 100_000
+    window = src.events.slice_time(100_000, 200_000)
+    np.testing.assert_array_equal(ev_ts, window.t - 100_000)
+    np.testing.assert_array_equal(ev_xy[:, 0], window.x)
+    np.testing.assert_array_equal(ev_pol, window.p)
+    np.testing.assert_allclose(ang_xyz, src.gyro.omega[101:201])
+    back = read_recording(path)
+    np.testing.assert_array_equal(back.events.y, window.y)
+
+
+def test_cli_simulate_export_show(tmp_path):
+    runner = CliRunner()
+    out = tmp_path / "ds"
+    args = ["simulate", "--out", str(out), "--sequences", "1", "--duration-ms", "100"]
+    res = runner.invoke(app, [*args, "--width", "32", "--height", "24"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["export-official", str(out), str(tmp_path / "off")])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "off" / "train" / "0000000.h5").exists()
+    fig = tmp_path / "fig.png"
+    res = runner.invoke(app, ["show", str(sequence_path(out, "train", 0)), "--out", str(fig)])
+    assert res.exit_code == 0, res.output
+    with Image.open(fig) as im:
+        assert im.size[0] > 500 and im.size[1] > 500

@@ -1,0 +1,60 @@
+"""Random-rotation statistics and trajectory round trips."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from spikegyro.sim import Trajectory, random_trajectory, so3_exp, so3_log
+
+
+def test_random_omega_is_zero_mean_equally_spread_uncorrelated_with_a_fast_tail():
+    n = 4000
+    w = np.degrees(
+        np.stack(
+            [random_trajectory(np.random.default_rng(s), 0.05).omega_at(0.0) for s in range(n)]
+        )
+    )
+    std = w.std(axis=0)
+    # Zero mean per axis (within 4 standard errors).
+    assert (np.abs(w.mean(axis=0)) < 4 * std / np.sqrt(n)).all()
+    # Equal spread: per-axis standard deviations within 8% of each other.
+    assert std.max() / std.min() < 1.08
+    # Uncorrelated axes.
+    corr = np.corrcoef(w.T)
+    assert np.abs(corr[np.triu_indices(3, 1)]).max() < 0.06
+    # Mean speed near the paper's mean-predictor error (226.9 deg/s), with a tail past 800.
+    speed = np.linalg.norm(w, axis=1)
+    assert 205 < speed.mean() < 245
+    assert (speed > 800).sum() >= 1
+
+
+def test_random_omega_varies_slightly_and_smoothly_within_a_sequence():
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 0.501, 0.001)
+    changes, jumps = [], []
+    for _ in range(50):
+        w = np.degrees(random_trajectory(rng, 0.5).omega_at(t))
+        changes.append(np.abs(w[-1] - w[0]).max())
+        jumps.append(np.abs(np.diff(w, axis=0)).max())
+    # Within 500 ms ω drifts by tens of deg/s, not hundreds; no step larger than 1 deg/s per ms.
+    assert 5 < np.median(changes) < 80
+    assert max(jumps) < 1.0
+
+
+def test_gyro_samples_are_1khz_inclusive_and_match_omega_at():
+    traj = random_trajectory(np.random.default_rng(2), 0.5)
+    t_us, omega = traj.gyro()
+    assert t_us[0] == 0 and t_us[-1] == 500_000 and len(t_us) == 501
+    assert (np.diff(t_us) == 1000).all()
+    np.testing.assert_allclose(omega[123], traj.omega_at(0.123))
+
+
+def test_arbitrary_samples_interpolate_linearly_and_rotation_composes():
+    t = np.array([0.0, 0.1, 0.2])
+    w = np.array([[0.0, 1.0, 0.0], [0.0, 3.0, 0.0], [0.0, 3.0, 0.0]])
+    traj = Trajectory(t, w, duration_s=0.2)
+    np.testing.assert_allclose(traj.omega_at(0.05), [0.0, 2.0, 0.0])
+    # About one fixed axis, the angle is the integral of ω: 0.2 over [0, 0.1] + 0.3 over the rest.
+    angle = so3_log(traj.rotation_at(0.2))
+    np.testing.assert_allclose(angle, [0.0, 0.2 + 0.3, 0.0], atol=1e-9)
+    np.testing.assert_allclose(so3_exp(so3_log(traj.rotation_at(0.13))), traj.rotation_at(0.13))
