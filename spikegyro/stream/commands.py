@@ -1,0 +1,102 @@
+"""``spikegyro predict``: stream an event file through a trained SNN, ω every millisecond."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+from spikegyro.errors import InputError
+from spikegyro.events.calib import Calibration, load_calibration
+from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_streaming_model
+from spikegyro.stream.predict import WARMUP_STEPS, predict_stream, read_time_span
+from spikegyro.stream.writer import check_prediction_path
+
+
+def predict(
+    events: Path = typer.Argument(
+        ..., help="Event file: .h5/.hdf5, .npz, events.txt (t x y p) or an ECD folder."
+    ),
+    checkpoint: Path = typer.Option(
+        None, "--checkpoint", help=f"Trained SNN checkpoint [default: {DEFAULT_CHECKPOINT.name}]."
+    ),
+    calib: Path = typer.Option(
+        None,
+        "--calib",
+        help="Sensor calibration: 'fx fy cx cy k1 k2 p1 p2 k3' (the Event Camera Dataset's "
+        "calib.txt); events are undistorted and reprojected onto the model's camera.",
+    ),
+    intrinsics: tuple[float, float, float, float] = typer.Option(
+        None, "--intrinsics", help="Sensor pinhole intrinsics fx fy cx cy (pixels), no distortion."
+    ),
+    gyro: Path = typer.Option(
+        None,
+        "--gyro",
+        help="Reference angular velocity (gyro 't wx wy wz', IMU 't ax ay az gx gy gz', or a file "
+        "with ground truth): adds it and the error to the output, prints metrics, draws a plot.",
+    ),
+    start: float = typer.Option(0.0, "--start", help="Start, seconds after the first event."),
+    end: float = typer.Option(None, "--end", help="End, seconds after the first event."),
+    out: Path = typer.Option(Path("pred.csv"), "--out", "-o", help="Output .csv or .h5."),
+    width: int = typer.Option(None, help="Sensor width, pixels (text files default to 240)."),
+    height: int = typer.Option(None, help="Sensor height, pixels (text files default to 180)."),
+) -> None:
+    """Predict ω = (ω_x, ω_y, ω_z) in rad/s every 1 ms, streaming, with a real-time-factor bar."""
+    if calib is not None and intrinsics is not None:
+        raise InputError("--calib and --intrinsics: give one of them, not both.")
+    check_prediction_path(out)
+    calibration = load_calibration(calib) if calib is not None else None
+    if intrinsics is not None:
+        calibration = Calibration(*intrinsics)
+    sensor = (width, height) if width and height else None
+    engine, payload = load_streaming_model(checkpoint or DEFAULT_CHECKPOINT)
+    span = read_time_span(events)
+    total_s = None
+    if span is not None:
+        total_s = max(0.0, (span[1] - span[0]) / 1e6 - start)
+        total_s = total_s if end is None else min(total_s, end - start)
+    console = Console(stderr=True)
+    columns = [
+        TextColumn("[bold]predict"),
+        BarColumn(),
+        TextColumn("{task.completed:.1f}/{task.fields[total_text]} s of events"),
+        TextColumn("[cyan]{task.fields[rtf]}× real time"),
+        TimeElapsedColumn(),
+    ]
+    with Progress(*columns, console=console, transient=True) as progress:
+        task = progress.add_task(
+            "predict", total=total_s, total_text=f"{total_s:.1f}" if total_s else "?", rtf="-"
+        )
+
+        def update(done_s: float, wall_s: float) -> None:
+            rtf = f"{done_s / wall_s:.1f}" if wall_s > 0 else "-"
+            progress.update(task, completed=done_s, rtf=rtf)
+
+        result = predict_stream(
+            events,
+            engine,
+            payload.get("input", {}),
+            out,
+            calibration=calibration,
+            gyro_path=gyro,
+            sensor=sensor,
+            start_s=start,
+            end_s=end,
+            on_progress=update,
+        )
+    console.print(
+        f"{result.steps:,} predictions ({result.steps / 1000:.3f} s, {result.events:,} events) "
+        f"-> {out}; {result.wall_s:.1f} s wall, {result.realtime_factor:.1f}× real time"
+    )
+    if result.stats:
+        s = result.stats
+        console.print(
+            f"vs gyro (from {WARMUP_STEPS} ms on, {s['samples']:,} samples): mean error "
+            f"{s['mean_error_deg_s']:.1f} deg/s, RMSE {s['rmse_deg_s']:.1f} deg/s "
+            f"(x {s['rmse_x_deg_s']:.1f}, y {s['rmse_y_deg_s']:.1f}, z {s['rmse_z_deg_s']:.1f}), "
+            f"median relative error {s['median_relative_error']:.3f}"
+        )
+    if result.plot is not None:
+        console.print(f"plot -> {result.plot}")

@@ -1,0 +1,392 @@
+"""Streaming prediction from an event file: geometry mapping, 1 ms binning, metrics against a gyro.
+
+The pipeline never holds more than one chunk of events: ``iter_event_chunks`` -> reproject onto
+the model's camera -> split into completed 1 ms bins -> :class:`StreamingSNN` -> prediction
+writer. Memory is flat in the length of the recording (the plot keeps a decimated copy of at most
+``_PLOT_POINTS`` samples; the median relative error comes from a fine log histogram).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from spikegyro.errors import InputError
+from spikegyro.events.calib import Calibration, PinholeCamera
+from spikegyro.events.core import EventArray, GyroTrace
+from spikegyro.events.io import detect_format, iter_event_chunks, read_gyro
+from spikegyro.stream.stateful import StreamingSNN
+from spikegyro.stream.writer import PredictionWriter, write_predictions
+
+__all__ = [
+    "ErrorStats",
+    "StreamPredictor",
+    "event_mapper",
+    "model_camera",
+    "predict_stream",
+    "read_time_span",
+    "write_predictions",
+]
+
+BIN_US = 1000
+WARMUP_STEPS = 50
+"""Steps after the start that metrics skip: the network needs ~50 ms of history (as in training)."""
+_PLOT_POINTS = 20_000
+_MIN_NORM_RAD = math.radians(1.0)
+
+
+def model_camera(input_spec: dict[str, Any]) -> PinholeCamera:
+    """The pinhole camera the model's input pixels correspond to.
+
+    ``input_spec["sensor"]`` is the training sensor [width, height]; its intrinsics are
+    ``input_spec["intrinsics"]`` [fx, fy, cx, cy] when given, else f = 200 px with the principal
+    point at the image centre (the simulator's default); ``scale`` resizes the image.
+    """
+    width, height = (int(v) for v in input_spec.get("sensor", (240, 180)))
+    fx, fy, cx, cy = input_spec.get("intrinsics", (200.0, 200.0, width / 2, height / 2))
+    camera = PinholeCamera(width, height, float(fx), float(fy), float(cx), float(cy))
+    return camera.scaled(float(input_spec.get("scale", 1.0)))
+
+
+def event_mapper(
+    sensor: tuple[int, int],
+    input_spec: dict[str, Any],
+    calibration: Calibration | None,
+    source: str = "events",
+) -> Callable[[EventArray], EventArray]:
+    """A function taking sensor events to events on the model's input grid.
+
+    With a calibration, every sensor pixel is undistorted and reprojected onto the model's camera
+    (lookup table). Without one the sensor must be the model's training sensor; the events are
+    then resized by the model's ``scale`` exactly as in training.
+    """
+    target = model_camera(input_spec)
+    if calibration is not None:
+        calibration.lookup_table(sensor[0], sensor[1], target)  # build (and check) it once
+        return lambda ev: calibration.map_events(ev, target)
+    trained = tuple(int(v) for v in input_spec.get("sensor", (240, 180)))
+    if tuple(sensor) != trained:
+        raise InputError(
+            f"{source}: sensor is {sensor[0]}x{sensor[1]} but the model was trained on "
+            f"{trained[0]}x{trained[1]}; pass --calib FILE or --intrinsics fx fy cx cy so the "
+            "events can be reprojected onto the model's camera."
+        )
+    scale = float(input_spec.get("scale", 1.0))
+    return (lambda ev: ev) if scale == 1.0 else (lambda ev: ev.rescale(scale))
+
+
+class StreamPredictor:
+    """Feed time-ordered events (already on the model's grid); get ω for every completed 1 ms bin.
+
+    Bin k covers ``[t0_us + k ms, t0_us + (k+1) ms)``; its prediction is stamped at the end of the
+    bin, ``t0_us + (k+1) ms``, like the ground truth in training.
+    """
+
+    def __init__(self, engine: StreamingSNN, width: int, t0_us: int) -> None:
+        self.engine = engine
+        self.width = width
+        self.t0_us = int(t0_us)
+        self.steps = 0
+        self._pending: list[EventArray] = []
+
+    def push(self, events: EventArray) -> tuple[np.ndarray, np.ndarray]:
+        """Add events; returns (t_us, omega rad/s) of the bins completed so far."""
+        if not len(events):
+            return np.zeros(0, np.int64), np.zeros((0, 3))
+        # a bin is complete once an event at or after its end has been seen
+        complete = int(events.t[-1] - self.t0_us) // BIN_US
+        self._pending.append(events)
+        return self._advance(complete)
+
+    def finish(self, t_end_us: int) -> tuple[np.ndarray, np.ndarray]:
+        """Run the remaining bins up to the one holding ``t_end_us - 1`` (the end, exclusive)."""
+        return self._advance(-(-(int(t_end_us) - self.t0_us) // BIN_US))
+
+    def _advance(self, n_total: int) -> tuple[np.ndarray, np.ndarray]:
+        n = n_total - self.steps
+        if n <= 0:
+            return np.zeros(0, np.int64), np.zeros((0, 3))
+        ev = EventArray.concatenate(self._pending)
+        cut = int(np.searchsorted(ev.t, self.t0_us + n_total * BIN_US, side="left"))
+        now, rest = ev[:cut], ev[cut:]
+        self._pending = [rest] if len(rest) else []
+        k = (now.t - self.t0_us) // BIN_US - self.steps
+        offsets = np.searchsorted(k, np.arange(n + 1), side="left")
+        index = (now.y.astype(np.int64) * self.width + now.x) * 2 + now.p
+        omega = self.engine.run(index, offsets)
+        t_us = self.t0_us + (self.steps + 1 + np.arange(n, dtype=np.int64)) * BIN_US
+        self.steps = n_total
+        return t_us, omega
+
+
+@dataclass
+class ErrorStats:
+    """Running error statistics of predictions against a reference, in bounded memory."""
+
+    count: int = 0
+    sum_err: float = 0.0
+    sum_sq: float = 0.0
+    sum_sq_axis: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    # log10 relative error histogram, 0.1% resolution, for the median
+    hist: np.ndarray = field(default_factory=lambda: np.zeros(8002, dtype=np.int64))
+
+    def add(self, omega: np.ndarray, reference: np.ndarray) -> None:
+        """Accumulate (K, 3) predictions and references, rad/s; NaN reference rows are skipped."""
+        ok = np.isfinite(reference).all(axis=1)
+        diff = omega[ok] - reference[ok]
+        err = np.linalg.norm(diff, axis=1)
+        self.count += len(err)
+        self.sum_err += float(err.sum())
+        self.sum_sq += float((err**2).sum())
+        self.sum_sq_axis += (diff**2).sum(axis=0)
+        norm = np.linalg.norm(reference[ok], axis=1)
+        big = norm >= _MIN_NORM_RAD
+        rel = np.log10(np.maximum(err[big] / norm[big], 1e-30))
+        bins = np.clip(np.floor((rel + 4.0) * 1000).astype(np.int64) + 1, 0, len(self.hist) - 1)
+        self.hist += np.bincount(bins, minlength=len(self.hist))
+
+    def summary(self) -> dict[str, float]:
+        """Mean Euclidean error, RMSE, per-axis RMSE (deg/s) and median relative error."""
+        if not self.count:
+            return {}
+        cum = np.cumsum(self.hist)
+        if cum[-1]:
+            i = int(np.searchsorted(cum, (cum[-1] + 1) // 2))
+            median_rel = 10 ** ((i - 0.5) / 1000 - 4.0)
+        else:
+            median_rel = float("nan")
+        axis_rmse = np.degrees(np.sqrt(self.sum_sq_axis / self.count))
+        return {
+            "samples": self.count,
+            "mean_error_deg_s": math.degrees(self.sum_err / self.count),
+            "rmse_deg_s": math.degrees(math.sqrt(self.sum_sq / self.count)),
+            "rmse_x_deg_s": float(axis_rmse[0]),
+            "rmse_y_deg_s": float(axis_rmse[1]),
+            "rmse_z_deg_s": float(axis_rmse[2]),
+            "median_relative_error": float(median_rel),
+        }
+
+
+class _Decimated:
+    """Keep every ``stride``-th row, doubling the stride whenever the buffer fills."""
+
+    def __init__(self, limit: int = _PLOT_POINTS) -> None:
+        self.limit, self.stride, self.seen = limit, 1, 0
+        self.rows: list[np.ndarray] = []
+        self.size = 0
+
+    def add(self, table: np.ndarray) -> None:
+        keep = (self.seen + np.arange(len(table))) % self.stride == 0
+        self.seen += len(table)
+        self.rows.append(table[keep])
+        self.size += int(keep.sum())
+        if self.size > self.limit:
+            merged = np.concatenate(self.rows)
+            self.stride *= 2
+            self.rows = [merged[::2]]
+            self.size = len(self.rows[0])
+
+    def table(self) -> np.ndarray:
+        return np.concatenate(self.rows) if self.rows else np.zeros((0, 7))
+
+
+def read_time_span(path: str | os.PathLike) -> tuple[int, int] | None:
+    """First and last event time (µs) of a file, read cheaply; None if unknown or empty."""
+    path = Path(path)
+    kind = detect_format(path)
+    if kind == "hdf5":
+        with h5py.File(path, "r") as f:
+            ts = f.get("ev_ts")
+            return (int(ts[0]), int(ts[-1])) if ts is not None and ts.shape[0] else None
+    if kind in ("events_txt", "ecd_dir"):
+        text = path / "events.txt" if kind == "ecd_dir" else path
+        first = next(iter_event_chunks(text, chunk_events=1), None)
+        if first is None or not len(first):
+            return None
+        with open(text, "rb") as f:
+            f.seek(max(0, f.seek(0, os.SEEK_END) - 4096))
+            lines = [ln for ln in f.read().splitlines() if ln.strip()]
+        try:
+            last = round(float(lines[-1].split()[0].rstrip(b",")) * 1e6)
+        except (ValueError, IndexError):
+            return None
+        return int(first.t[0]), last
+    return None
+
+
+def _read_reference(path: str | os.PathLike) -> GyroTrace:
+    """Gyro samples from a gyro/IMU text file or an event file with ground truth (HDF5: only the
+    ``ang_*`` datasets are read, not the events)."""
+    path = Path(path)
+    if detect_format(path) == "hdf5":
+        with h5py.File(path, "r") as f:
+            if "ang_ts" not in f or "ang_xyz" not in f:
+                raise InputError(f"{path}: the file holds no angular velocity (ang_ts, ang_xyz).")
+            return GyroTrace.from_arrays(f["ang_ts"][()], f["ang_xyz"][()], source=str(path))
+    return read_gyro(path)
+
+
+def _bounded_chunks(
+    path: Path,
+    sensor: tuple[int, int] | None,
+    chunk_events: int,
+    start_s: float,
+    end_s: float | None,
+) -> tuple[int | None, int | None, Iterator[EventArray]]:
+    """(t0_us, t_end_us, chunks); start and end count from the first event's whole millisecond."""
+    chunks = iter_event_chunks(path, sensor=sensor, chunk_events=chunk_events)
+    first = None
+    for chunk in chunks:
+        if len(chunk):
+            first = chunk
+            break
+    if first is None:
+        return None, None, iter(())
+    t_first = int(first.t[0]) // BIN_US * BIN_US
+    t0 = t_first + round(start_s * 1e6)
+    t_end = None if end_s is None else t_first + round(end_s * 1e6)
+
+    def gen() -> Iterator[EventArray]:
+        for chunk in _chain(first, chunks):
+            if t_end is not None and len(chunk) and chunk.t[0] >= t_end:
+                return
+            lo = int(np.searchsorted(chunk.t, t0, side="left"))
+            hi = len(chunk) if t_end is None else int(np.searchsorted(chunk.t, t_end))
+            if hi > lo:
+                yield chunk[lo:hi]
+
+    return t0, t_end, gen()
+
+
+def _chain(first: EventArray, rest: Iterator[EventArray]) -> Iterator[EventArray]:
+    yield first
+    yield from rest
+
+
+@dataclass
+class StreamResult:
+    """What :func:`predict_stream` did."""
+
+    steps: int = 0
+    events: int = 0
+    wall_s: float = 0.0
+    t0_us: int = 0
+    stats: dict[str, float] = field(default_factory=dict)
+    plot: Path | None = None
+
+    @property
+    def realtime_factor(self) -> float:
+        """Seconds of events processed per second of wall time."""
+        return self.steps * BIN_US / 1e6 / self.wall_s if self.wall_s > 0 else float("inf")
+
+
+def predict_stream(
+    events_path: str | os.PathLike,
+    engine: StreamingSNN,
+    input_spec: dict[str, Any],
+    out_path: str | os.PathLike,
+    *,
+    calibration: Calibration | None = None,
+    gyro_path: str | os.PathLike | None = None,
+    sensor: tuple[int, int] | None = None,
+    start_s: float = 0.0,
+    end_s: float | None = None,
+    chunk_events: int = 200_000,
+    on_progress: Callable[[float, float], None] | None = None,
+    plot: bool = True,
+) -> StreamResult:
+    """Stream ``events_path`` through ``engine``, writing ω every 1 ms to ``out_path``.
+
+    Args:
+        events_path: any event file :mod:`spikegyro.events.io` reads.
+        engine: the stateful network (reset here).
+        input_spec: the checkpoint's input description (sensor, scale, intrinsics).
+        out_path: ``.csv`` or ``.h5`` prediction file (written atomically).
+        calibration: the sensor's calibration; None when the sensor is the model's own.
+        gyro_path: reference angular velocity (gyro/IMU text, or a file with ground truth),
+            interpolated to the prediction times; adds columns, error statistics and a plot.
+        sensor: (width, height) override for files that do not say (text defaults to 240x180).
+        start_s, end_s: the time span to run, seconds after the file's first event (rounded down
+            to a whole millisecond, so bins align with the simulator's and the gyro's clock).
+        on_progress: called as ``on_progress(event_seconds_done, wall_seconds)`` per chunk.
+        plot: draw predictions against the gyro beside ``out_path`` (``.png``) when a gyro is given.
+    """
+    events_path = Path(events_path)
+    gyro = None if gyro_path is None else _read_reference(gyro_path)
+    if end_s is not None and end_s <= start_s:
+        raise InputError(f"--end {end_s} s must be after --start {start_s} s.")
+    result = StreamResult()
+    t0, t_end, chunks = _bounded_chunks(events_path, sensor, chunk_events, start_s, end_s)
+    if t0 is None:
+        raise InputError(f"{events_path}: the file holds no events.")
+    result.t0_us = t0
+    engine.reset()
+    target = model_camera(input_spec)
+    stats, series = ErrorStats(), _Decimated()
+    mapper: Callable[[EventArray], EventArray] | None = None
+    predictor = StreamPredictor(engine, target.width, t0)
+    start = time.perf_counter()
+    last_t = t0
+
+    def emit(writer: PredictionWriter, t_us: np.ndarray, omega: np.ndarray) -> None:
+        ref = None
+        if gyro is not None:
+            ref = gyro.interpolate(t_us)
+            outside = (t_us < gyro.t[0]) | (t_us > gyro.t[-1]) if len(gyro) else True
+            ref[outside] = np.nan
+            scored = t_us > t0 + WARMUP_STEPS * BIN_US
+            stats.add(omega[scored], ref[scored])
+            series.add(np.column_stack([t_us, omega, ref]))
+        writer.append(t_us, omega, ref)
+
+    with PredictionWriter(out_path, with_gyro=gyro is not None) as writer:
+        for chunk in chunks:
+            if mapper is None:
+                mapper = event_mapper(chunk.sensor_size, input_spec, calibration, str(events_path))
+            result.events += len(chunk)
+            last_t = int(chunk.t[-1])
+            emit(writer, *predictor.push(mapper(chunk)))
+            if on_progress is not None:
+                on_progress(predictor.steps * BIN_US / 1e6, time.perf_counter() - start)
+        emit(writer, *predictor.finish(t_end if t_end is not None else last_t + 1))
+    result.wall_s = time.perf_counter() - start
+    result.steps = predictor.steps
+    result.stats = stats.summary()
+    if gyro is not None and plot:
+        result.plot = plot_against_gyro(Path(out_path).with_suffix(".png"), series.table(), t0)
+    return result
+
+
+def plot_against_gyro(path: Path, table: np.ndarray, t0_us: int) -> Path:
+    """Predicted and reference ω per axis (deg/s) over time; ``table`` rows: t_us, ω(3), ref(3)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from spikegyro.events.io import atomic_path
+
+    t = (table[:, 0] - t0_us) / 1e6
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(10, 6.5))
+    for k, (ax, name) in enumerate(
+        zip(axes, ("ω_x (tilt)", "ω_y (pan)", "ω_z (roll)"), strict=True)
+    ):
+        ax.plot(t, np.degrees(table[:, 4 + k]), color="0.3", lw=1.0, label="gyro")
+        ax.plot(t, np.degrees(table[:, 1 + k]), color="C3", lw=0.8, label="SNN")
+        ax.set_ylabel(f"{name}\n[deg/s]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", ncol=2)
+    axes[-1].set_xlabel("time since start [s]")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
+    plt.close(fig)
+    return path
