@@ -1,0 +1,141 @@
+"""SNN-6 of Gehrig et al. (ICRA 2020), layer for layer as the official model.
+
+Architecture (Ts = 1 ms): five spiking 3×3 convolutions without padding or bias, channels
+16-32-64-128-256, strides 2-2-2-2-1, then global average spike pooling (GASP), a dense 256→3
+map without bias and a PSP with τs = 8 ms. Input (N, 2, H, W, T) spikes (channel 0 = OFF,
+1 = ON); output (N, 3, T) angular velocity ω = (ω_x, ω_y, ω_z) in rad/s at every step.
+
+Step-by-step semantics (what a stateful, streaming implementation must reproduce; ε and ν are
+the layer's ``srm_kernel`` and ``ref_kernel`` buffers, see :mod:`spikegyro.snn.kernels` for their
+truncation: ε stops at the first k > τs with ε[k] < 0.01, ν keeps the taps with |ν[k]| > 0.01),
+for layer l = 1…5 at step t, with s_0 the input and all history before t = 0 zero:
+
+    z_l[t] = conv2d(s_{l−1}[t], W_l, stride_l)                (no padding, no bias)
+    v_l[t] = Σ_{k=0}^{len(ε)−1} ε_l[k] · z_l[t − k]           (PSP; ε[0] = 0)
+    u_l[t] = v_l[t] + Σ_{k=1}^{len(ν)−1} ν_l[k] · s_l[t − k]  (refractory feedback, own spikes)
+    s_l[t] = 1 if u_l[t] ≥ θ_l else 0
+
+then m[t] = mean over (h, w) of s_5[t] (N, 256); y[t] = W_fc · m[t] (N, 3);
+ω[t] = Σ_k ε_8[k]·y[t − k].
+The official code filters before convolving (conv2d(psp(s))); both maps are linear, so the two
+orders are equal up to float rounding. The batch implementation sums the PSP in a matrix
+product, so a step-by-step one agrees to ~1e-6 and can differ in a spike only where u is within
+rounding of θ.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from spikegyro.errors import InputError
+from spikegyro.models.registry import register
+from spikegyro.snn.layers import GASP, SRMConv, SRMDense, SRMParams
+
+
+@dataclass(frozen=True)
+class ConvSpec:
+    """One spiking conv layer of SNN-6."""
+
+    out_channels: int
+    stride: int
+    params: SRMParams
+
+
+SNN6_LAYERS: tuple[ConvSpec, ...] = (
+    ConvSpec(16, 2, SRMParams(tau_s=2.0, theta=0.27, tau_r=1.0, scale_rho=0.20)),
+    ConvSpec(32, 2, SRMParams(tau_s=2.0, theta=0.25, tau_r=1.0, scale_rho=0.13)),
+    ConvSpec(64, 2, SRMParams(tau_s=4.0, theta=0.30, tau_r=4.0, scale_rho=0.13)),
+    ConvSpec(128, 2, SRMParams(tau_s=4.0, theta=0.40, tau_r=4.0, scale_rho=0.25)),
+    ConvSpec(256, 1, SRMParams(tau_s=4.0, theta=0.40, tau_r=4.0, scale_rho=100.0)),
+)
+"""Per-layer values of the official model (θ, τs, τr in ms, scaleRho; tauRho = 0.3)."""
+
+READOUT = SRMParams(tau_s=8.0)
+"""Non-spiking readout: PSP with τs = 8 ms of the dense layer's output."""
+
+KERNEL_SIZE = 3
+
+INIT_GAIN = 1.5
+"""Weight init: uniform in ±INIT_GAIN/√fan_in per layer (1.0 is PyTorch's and the official
+default). At 1.0, uniform random input spikes at 1 % density leave layer 5 silent, and a silent
+network has no gradient. At 1.5 (240x180, T = 100) layers 1-5 fire on 0.7/1.9/5/8/11 % of
+(neuron, step) pairs at 0.3 % input density, 2.6/9/18/23/26 % at 1 % and stay alive at 2 %."""
+
+
+@register("snn6")
+class SNN6(nn.Module):
+    """The paper's spiking network; see the module docstring for the exact computation.
+
+    Args:
+        in_channels: input polarity channels (2).
+        init_gain: weight init scale, uniform in ±init_gain/√fan_in per layer.
+    """
+
+    def __init__(self, in_channels: int = 2, init_gain: float = INIT_GAIN) -> None:
+        super().__init__()
+        self.in_channels = in_channels
+        channels = in_channels
+        convs = []
+        for spec in SNN6_LAYERS:
+            convs.append(
+                SRMConv(channels, spec.out_channels, spec.params, KERNEL_SIZE, spec.stride)
+            )
+            channels = spec.out_channels
+        # Named conv1 … conv5 and fc, as in the official state dict.
+        self.conv1, self.conv2, self.conv3, self.conv4, self.conv5 = convs
+        self.pool = GASP()
+        self.fc = SRMDense(channels, 3, READOUT)
+        self.reset_parameters(init_gain)
+
+    @property
+    def convs(self) -> tuple[SRMConv, ...]:
+        return (self.conv1, self.conv2, self.conv3, self.conv4, self.conv5)
+
+    def reset_parameters(self, gain: float = INIT_GAIN) -> None:
+        """Re-draw all weights uniformly in ±gain/√fan_in."""
+        for layer in (*self.convs, self.fc):
+            layer.reset_parameters(gain)
+
+    def feature_size(self, height: int, width: int) -> tuple[int, int]:
+        """Spatial size (px) of the layer-5 map for a height × width input."""
+        for conv in self.convs:
+            height, width = conv.output_size(height, width)
+        return height, width
+
+    def min_input_size(self) -> int:
+        """Smallest input side (px) for which layer 5 still has one neuron per channel."""
+        side = 1
+        for conv in reversed(self.convs):
+            side = (side - 1) * conv.stride + conv.weight.shape[-1] - 2 * conv.padding
+        return side
+
+    def _check_input(self, x: torch.Tensor) -> None:
+        if x.dim() != 5 or x.shape[1] != self.in_channels:
+            raise InputError(
+                f"SNN-6 input of shape {tuple(x.shape)}: expected (N, {self.in_channels}, H, W, T) "
+                "spikes; add a batch dimension or fix the channel count."
+            )
+        height, width = x.shape[2:4]
+        side = self.min_input_size()
+        if min(height, width) < side:
+            raise InputError(
+                f"SNN-6 input of {width}x{height} px is too small: the network needs at least "
+                f"{side}x{side} px (5 unpadded 3x3 convolutions); use a larger sensor or scale."
+            )
+
+    def forward_with_spikes(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """Run the network; returns (ω (N, 3, T) rad/s, [spikes (N, C, H, W, T) of layers 1–5])."""
+        self._check_input(x)
+        spikes = x if x.is_floating_point() else x.to(self.fc.weight.dtype)
+        per_layer = []
+        for conv in self.convs:
+            spikes = conv(spikes)
+            per_layer.append(spikes)
+        return self.fc(self.pool(spikes)), per_layer
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """ω (N, 3, T) in rad/s from input spikes (N, 2, H, W, T)."""
+        return self.forward_with_spikes(x)[0]
