@@ -15,6 +15,7 @@ from spikegyro.errors import InputError
 from spikegyro.evaluate import commands as evaluate_commands
 from spikegyro.events import commands as events_commands
 from spikegyro.sim import commands as sim_commands
+from spikegyro.stream import commands as stream_commands
 from spikegyro.train import commands as train_commands
 
 app = typer.Typer(
@@ -46,6 +47,7 @@ app.command("show")(sim_commands.show)
 app.command("evaluate")(evaluate_commands.evaluate)
 app.command("report")(evaluate_commands.report)
 app.command("train")(train_commands.train_command)
+app.command("predict")(stream_commands.predict)
 
 
 def main() -> None:

@@ -20,7 +20,10 @@ def predict(
         ..., help="Event file: .h5/.hdf5, .npz, events.txt (t x y p) or an ECD folder."
     ),
     checkpoint: Path = typer.Option(
-        None, "--checkpoint", help=f"Trained SNN checkpoint [default: {DEFAULT_CHECKPOINT.name}]."
+        None,
+        "--checkpoint",
+        help="Trained SNN checkpoint (default: the shipped pretrained SNN-6, "
+        "spikegyro/data/pretrained/snn6.pt).",
     ),
     calib: Path = typer.Option(
         None,
