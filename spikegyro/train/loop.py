@@ -18,7 +18,7 @@ import math
 import random
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -95,18 +95,28 @@ def model_kwargs_of(config: TrainConfig, spec: InputSpec) -> dict[str, Any]:
     return kwargs
 
 
-def online_simulator(config: TrainConfig) -> functools.partial:
-    """``index -> Recording`` for online mode (a picklable partial of ``simulate_sequence``)."""
-    from spikegyro.sim import SimConfig, simulate_sequence  # the simulator is only needed here
+def online_simulator(config: TrainConfig, split: str = "train") -> functools.partial:
+    """``index -> Recording`` for online mode (a picklable partial of ``simulate_sequence``).
 
-    sim = dict(config.sim or {})
-    sim.setdefault("width", config.sensor[0])
-    sim.setdefault("height", config.sensor[1])
+    Sequences last one window unless ``config.sim`` sets ``duration_ms`` (only one window is
+    drawn from each), and the camera is scaled to ``config.sensor`` if it differs.
+    """
+    from spikegyro.sim.camera import Camera  # the simulator is only needed in online mode
+    from spikegyro.sim.dataset import SimConfig, simulate_sequence
+
+    base = SimConfig(duration_ms=config.window_ms).to_dict()
+    for key, value in (config.sim or {}).items():
+        if key not in base:
+            raise InputError(f"--sim: unknown simulator setting '{key}'; see SimConfig.")
+        base[key] = {**base[key], **value} if isinstance(base[key], dict) else value
     try:
-        sim_config = SimConfig(**sim)
-    except TypeError as exc:
-        raise InputError(f"--sim {sim}: not a valid simulator configuration ({exc}).") from None
-    return functools.partial(simulate_sequence, sim_config, seed=config.seed)
+        sim_config = SimConfig.from_dict(base)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"--sim {config.sim}: not a valid simulator setting ({exc}).") from None
+    cam = sim_config.camera
+    if (cam.width, cam.height) != config.sensor:
+        sim_config = replace(sim_config, camera=Camera.scaled(*config.sensor, fov_of=cam))
+    return functools.partial(simulate_sequence, sim_config, seed=config.seed, split=split)
 
 
 def training_samples(config: TrainConfig, spec: InputSpec) -> TrainingSamples:
@@ -125,12 +135,11 @@ def validation_windows(config: TrainConfig) -> list[Window]:
     if config.data:
         windows = fixed_windows(config.data, "val", config.window_ms)
     else:
-        simulate = online_simulator(config)
-        # indices far beyond any training sample index, so validation never overlaps training
+        simulate = online_simulator(config, split="val")
         windows = [
             w
             for i in range(config.val_sequences)
-            for w in sequence_windows(simulate(10**12 + i), config.window_ms, f"val:{i}")
+            for w in sequence_windows(simulate(i), config.window_ms, f"online-val:{i}")
         ]
     if config.val_windows and len(windows) > config.val_windows:
         # an even spread over sequences and positions, the same every time

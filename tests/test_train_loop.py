@@ -1,0 +1,256 @@
+"""The training loop on a tiny simulated dataset: learning, resume, DDP, the command line."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import socket
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import torch.multiprocessing as mp
+from scipy.ndimage import gaussian_filter
+from typer.testing import CliRunner
+
+from spikegyro.cli import app
+from spikegyro.events.io import write_recording
+from spikegyro.models.registry import build_model, load_checkpoint
+from spikegyro.sim.camera import Camera
+from spikegyro.sim.esim import simulate
+from spikegyro.sim.panorama import Panorama
+from spikegyro.sim.trajectory import random_trajectory
+from spikegyro.train import distributed
+from spikegyro.train.data import model_batch
+from spikegyro.train.loop import (
+    StepSampler,
+    input_spec_of,
+    model_kwargs_of,
+    train,
+    training_samples,
+)
+from spikegyro.train.loss import angular_velocity_loss
+from spikegyro.train.presets import TrainConfig, resolve_config
+
+SIZE = 64  # SNN-6 needs at least 63 px for its five unpadded convolutions
+CAMERA = Camera(SIZE, SIZE, fx=56.0, fy=56.0, cx=31.5, cy=31.5)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    """Four 100 ms sequences (3 train, 1 val) of a random texture."""
+    root = tmp_path_factory.mktemp("tiny")
+    rng = np.random.default_rng(0)
+    texture = gaussian_filter(rng.standard_normal((256, 512)), sigma=2.0, mode="wrap")
+    scene = Panorama(np.exp(1.5 * texture / texture.std()), "noise")
+    for i, split in enumerate(("train", "train", "train", "val")):
+        traj = random_trajectory(np.random.default_rng(10 + i), duration_s=0.1)
+        rec = simulate(scene, traj, CAMERA, rng=np.random.default_rng(i))
+        write_recording(root / split / f"seq_{i:06d}.h5", rec)
+    return root
+
+
+def tiny_config(dataset: Path, out: Path, **kw) -> TrainConfig:
+    values = dict(
+        data=str(dataset), out=str(out), model="snn6", sensor=(SIZE, SIZE), window_ms=20,
+        loss_start_step=10, batch_size=4, lr=1e-3, iterations=4, val_every=2, log_every=1,
+        num_workers=0, device="cpu", threads=1,
+    )  # fmt: skip
+    values.update(kw)
+    return resolve_config("paper", values)
+
+
+@pytest.mark.parametrize(
+    ("model", "kwargs"), [("snn6", {}), ("ann6", {"batch_norm": False})], ids=["snn6", "ann6"]
+)
+def test_one_training_step_lowers_the_loss(dataset, tmp_path, model, kwargs):
+    config = tiny_config(dataset, tmp_path, model=model, model_kwargs=kwargs, lr=3e-4)
+    spec = input_spec_of(config)
+    torch.manual_seed(0)
+    net = build_model(model, **model_kwargs_of(config, spec))
+    samples = training_samples(config, spec)
+    batch = [samples[i] for i in range(4)]
+    x, y = model_batch(torch.stack([b[0] for b in batch]), torch.stack([b[1] for b in batch]), spec)
+    optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
+    before = angular_velocity_loss(net(x), y, config.loss_start_step)
+    optimizer.zero_grad()
+    before.backward()
+    optimizer.step()
+    with torch.no_grad():
+        after = angular_velocity_loss(net(x), y, config.loss_start_step)
+    assert after.item() < before.item() - 1e-3
+
+
+def state_of(path: Path) -> dict[str, torch.Tensor]:
+    return torch.load(path, map_location="cpu", weights_only=False)["state_dict"]
+
+
+def assert_same_weights(a: Path, b: Path, atol: float = 0.0) -> None:
+    sa, sb = state_of(a), state_of(b)
+    assert sa.keys() == sb.keys()
+    for k in sa:
+        torch.testing.assert_close(sa[k], sb[k], atol=atol, rtol=0)
+
+
+def test_run_writes_its_files_and_resumes_to_the_same_state(dataset, tmp_path):
+    kw = dict(warmup_steps=3)  # the scheduler's state crosses the resume point
+    straight = train(tiny_config(dataset, tmp_path / "a", **kw), progress=False)
+    assert straight.steps == 4
+    run = tmp_path / "a"
+    for name in ("config.json", "log.csv", "last.pt", "best.pt", "resume.pt", "loss.png"):
+        assert (run / name).exists(), name
+    saved = json.loads((run / "config.json").read_text())
+    assert saved["batch_size"] == 4 and saved["window_ms"] == 20
+    with open(run / "log.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [int(r["step"]) for r in rows] == [1, 2, 3, 4]
+    assert rows[1]["val_median_rel"] and rows[3]["val_median_rel"]
+    _, payload = load_checkpoint(run / "last.pt")
+    assert payload["input"]["representation"] == "spikes" and payload["extra"]["step"] == 4
+
+    # interrupted after 2 steps (as if killed after the checkpoint), then resumed to 4
+    first = train(tiny_config(dataset, tmp_path / "b", iterations=2, **kw), progress=False)
+    assert first.steps == 2
+    config = replace(tiny_config(dataset, tmp_path / "b", **kw))
+    resumed = train(config, resume=True, progress=False)
+    assert resumed.steps == 4
+    assert_same_weights(run / "last.pt", tmp_path / "b" / "last.pt")
+    sa = torch.load(run / "resume.pt", weights_only=False)["optimizer"]["state"]
+    sb = torch.load(tmp_path / "b" / "resume.pt", weights_only=False)["optimizer"]["state"]
+    for k in sa:
+        torch.testing.assert_close(sa[k]["exp_avg_sq"], sb[k]["exp_avg_sq"], atol=0, rtol=0)
+    with open(tmp_path / "b" / "log.csv", newline="") as f:
+        assert [int(r["step"]) for r in csv.DictReader(f)] == [1, 2, 3, 4]
+
+
+def test_time_budget_stops_gracefully_with_a_checkpoint(dataset, tmp_path):
+    result = train(
+        tiny_config(dataset, tmp_path, iterations=1000, max_minutes=1e-6, val_every=1000),
+        progress=False,
+    )
+    assert result.stopped_early and result.steps == 1
+    assert (tmp_path / "last.pt").exists() and result.val
+
+
+# ----------------------------------------------------------------------------------- DDP
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _ddp_worker(rank: int, world: int, port: int, config: TrainConfig, out: str) -> None:
+    os.environ.update(
+        MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world),
+        LOCAL_RANK=str(rank),
+    )  # fmt: skip
+    torch.set_num_threads(1)
+    ctx = distributed.init_distributed("cpu")
+    # (a) one backward pass through DDP on this process's share of step 0's batch
+    spec = input_spec_of(config)
+    torch.manual_seed(config.seed)
+    net = torch.nn.parallel.DistributedDataParallel(
+        build_model(config.model, **model_kwargs_of(config, spec))
+    )
+    samples = training_samples(config, spec)
+    idx = list(StepSampler(0, 1, config.batch_size, rank, world))
+    batch = [samples[i] for i in idx]
+    x, y = model_batch(torch.stack([b[0] for b in batch]), torch.stack([b[1] for b in batch]), spec)
+    angular_velocity_loss(net(x), y, config.loss_start_step).backward()
+    if rank == 0:
+        grads = {n: p.grad for n, p in net.module.named_parameters()}
+        torch.save({"grads": grads, "indices": idx}, Path(out) / "ddp_grads.pt")
+    distributed.barrier(ctx)
+    # (b) the full loop, which joins the same process group
+    train(config, progress=False)
+
+
+def test_ddp_two_processes_match_single_process(dataset, tmp_path):
+    config = tiny_config(dataset, tmp_path / "ddp", iterations=3, val_every=3)
+    (tmp_path / "ddp").mkdir()
+    mp.spawn(
+        _ddp_worker, args=(2, _free_port(), config, str(tmp_path / "ddp")), nprocs=2, join=True
+    )
+    single = replace(config, out=str(tmp_path / "single"))
+    spec = input_spec_of(single)
+    torch.manual_seed(single.seed)
+    net = build_model(single.model, **model_kwargs_of(single, spec))
+    samples = training_samples(single, spec)
+    idx = list(StepSampler(0, 1, single.batch_size, 0, 1))
+    batch = [samples[i] for i in idx]
+    x, y = model_batch(torch.stack([b[0] for b in batch]), torch.stack([b[1] for b in batch]), spec)
+    angular_velocity_loss(net(x), y, single.loss_start_step).backward()
+    ddp = torch.load(tmp_path / "ddp" / "ddp_grads.pt", weights_only=False)
+    assert ddp["indices"] == idx[: len(idx) // 2]  # rank 0 took the first half
+    for name, p in net.named_parameters():
+        assert p.grad.abs().max() > 0, name
+        scale = float(p.grad.abs().max())
+        torch.testing.assert_close(ddp["grads"][name], p.grad, rtol=1e-4, atol=1e-5 * scale)
+    train(single, progress=False)
+    assert_same_weights(tmp_path / "ddp" / "last.pt", tmp_path / "single" / "last.pt", atol=1e-5)
+
+
+# ------------------------------------------------------------------------------ the CLI
+
+
+def test_cli_trains_overrides_options_and_resumes(dataset, tmp_path):
+    runner = CliRunner()
+    out = tmp_path / "cli"
+    args = [
+        "train", "--preset", "cpu", "--data", str(dataset), "--out", str(out),
+        "--sensor-width", str(SIZE), "--sensor-height", str(SIZE), "--scale", "1",
+        "--window-ms", "20", "--loss-start-step", "10", "--batch-size", "2",
+        "--iterations", "2", "--val-every", "2", "--num-workers", "0", "--threads", "1",
+        "--device", "cpu",
+    ]  # fmt: skip
+    result = runner.invoke(app, args, catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    saved = json.loads((out / "config.json").read_text())
+    assert saved["preset"] == "cpu" and saved["batch_size"] == 2 and saved["scale"] == 1.0
+    assert saved["lr_schedule"] == "cosine"  # from the preset, not overridden
+    again = runner.invoke(app, args)
+    assert again.exit_code != 0 and "already holds a run" in str(again.exception)
+    more = ["train", "--resume", "--out", str(out), "--iterations", "4"]
+    result = runner.invoke(app, more, catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    assert torch.load(out / "resume.pt", weights_only=False)["step"] == 4
+
+
+def test_config_errors_are_user_errors(tmp_path):
+    from spikegyro.errors import InputError
+
+    with pytest.raises(InputError, match="--model"):
+        resolve_config("paper", {"data": "x", "model": "lenet"})
+    with pytest.raises(InputError, match="spikes"):
+        resolve_config("paper", {"data": "x", "model": "ann6", "input": "spikes"})
+    with pytest.raises(InputError, match="--preset"):
+        resolve_config("gpu", {"data": "x"})
+    with pytest.raises(InputError, match="--online"):
+        resolve_config("paper", {})
+
+
+def test_online_mode_simulates_fresh_sequences_in_workers(tmp_path):
+    sim = {"camera": {"width": SIZE, "height": SIZE, "fx": 56.0, "fy": 56.0, "cx": 31.5,
+                      "cy": 31.5}}  # fmt: skip
+    config = resolve_config(
+        "paper",
+        dict(
+            online=True, out=str(tmp_path), sensor=(SIZE, SIZE), sim=sim, window_ms=20,
+            loss_start_step=10, batch_size=2, iterations=2, val_every=2, val_sequences=2,
+            num_workers=1, device="cpu", threads=1,
+        ),
+    )  # fmt: skip
+    spec = input_spec_of(config)
+    samples = training_samples(config, spec)
+    first, second = samples.window(0), samples.window(1)
+    assert first.source == "online:0" and second.source == "online:1"
+    assert not np.allclose(first.omega, second.omega)  # a new random motion per sample
+    np.testing.assert_array_equal(samples.window(0).events.t, first.events.t)  # reproducible
+    result = train(config, progress=False)
+    assert result.steps == 2 and np.isfinite(result.val["val_loss"])
+    assert not any(tmp_path.glob("**/*.h5"))
