@@ -101,3 +101,27 @@ def test_state_returns_to_exact_zero_after_the_kernels_end():
     assert quiet < steps
     assert np.all(got[quiet:] == 0.0)
     assert not engine._state.any()  # every pixel went stale and was cleared
+
+
+def test_snn6_streaming_equals_its_batch_forward():
+    # Double precision on both sides, so the comparison is not at the mercy of a potential that
+    # lands within float32 rounding of the threshold (a flipped spike moves the output by far
+    # more than 1e-4 when layer 5 has a handful of pixels).
+    from spikegyro.models.snn6 import SNN6
+
+    torch.manual_seed(0)
+    height, width, steps = 64, 72, 100
+    model = SNN6().double().eval()
+    events = random_events(width, height, steps, rate=0.01, seed=6)
+    x = spike_tensor(events.x, events.y, events.t, events.p, height=height, width=width,
+                     t_start_us=0, num_bins=steps)  # fmt: skip
+    with torch.no_grad():
+        out, spikes = model.forward_with_spikes(torch.from_numpy(x)[None].double())
+    expected = out[0].T.numpy()
+    engine = StreamingSNN(spec_from_model(model, (2, height, width), np.float64), np.float64)
+    index, offsets = step_offsets(events, 0, steps)
+    got = np.concatenate([engine.run(index[: offsets[60]], offsets[:61]),
+                          engine.run(index[offsets[60]:], offsets[60:] - offsets[60])])  # fmt: skip
+    assert engine.spike_counts.tolist() == [int(s.sum()) for s in spikes]
+    assert engine.spike_counts[-1] > 0
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-10 * np.abs(expected).max())
