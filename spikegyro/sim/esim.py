@@ -46,7 +46,7 @@ class EventSimConfig:
     eps: float = 1e-3
     max_px_per_frame: float = 0.5
     min_frame_rate_hz: float = 500.0
-    chunk_frames: int = 8
+    chunk_frames: int = 16
 
 
 def frame_times(
@@ -72,91 +72,110 @@ def frame_times(
     return times
 
 
-def _thresholds(base: np.ndarray, config: EventSimConfig, rng: np.random.Generator) -> np.ndarray:
-    if config.noise_std <= 0:
-        return base.copy()
-    noisy = base + config.noise_std * rng.standard_normal(base.shape).astype(np.float32)
-    return np.maximum(noisy, np.float32(config.min_contrast))
-
-
 class _EventGenerator:
     """Per-pixel ESIM state over a stream of frames (flattened to P pixels)."""
 
-    def __init__(
-        self, first: np.ndarray, t0_s: float, config: EventSimConfig, rng: np.random.Generator
-    ) -> None:
+    def __init__(self, first: np.ndarray, config: EventSimConfig, rng: np.random.Generator):
         p = first.size
         self.config = config
         self.rng = rng
-        floor = np.float32(config.min_contrast)
+        self.floor = np.float32(config.min_contrast)
         mismatch = np.float32(config.mismatch_std)
         self.base_on = np.maximum(
-            np.float32(config.contrast_on) + mismatch * rng.standard_normal(p, np.float32), floor
+            np.float32(config.contrast_on) + mismatch * rng.standard_normal(p, np.float32),
+            self.floor,
         )
         self.base_off = np.maximum(
-            np.float32(config.contrast_off) + mismatch * rng.standard_normal(p, np.float32), floor
+            np.float32(config.contrast_off) + mismatch * rng.standard_normal(p, np.float32),
+            self.floor,
         )
-        self.c_on = _thresholds(self.base_on, config, rng)
-        self.c_off = _thresholds(self.base_off, config, rng)
+        self.c_on = self._noisy(self.base_on)
+        self.c_off = self._noisy(self.base_off)
         self.ref = first.astype(np.float32).copy()
         self.prev = self.ref.copy()
-        self.t_prev = t0_s
+        self.t_prev = 0.0
         self.last_t = np.full(p, -np.inf)
-        self.out: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def _noisy(self, base: np.ndarray) -> np.ndarray:
+        """Thresholds for the next crossing: ``base`` plus per-crossing noise, clamped."""
+        if self.config.noise_std <= 0:
+            return base.copy()
+        noise = self.rng.standard_normal(base.shape, np.float32)
+        return np.maximum(base + np.float32(self.config.noise_std) * noise, self.floor)
 
     def push(self, frames: np.ndarray, times_s: np.ndarray) -> None:
         """Consume frames (K, P) of log intensity rendered at ``times_s`` (K,) seconds."""
         # Cheap vectorised screen: only pixels whose signal leaves the threshold band around
         # their current reference somewhere in this chunk can fire.
-        diff = frames - self.ref
-        hot = np.flatnonzero((diff.max(axis=0) >= self.c_on) | (diff.min(axis=0) <= -self.c_off))
+        high = frames.max(axis=0) - self.ref >= self.c_on
+        hot = np.flatnonzero(high | (frames.min(axis=0) - self.ref <= -self.c_off))
         if hot.size:
             seq = np.concatenate([self.prev[None, hot], frames[:, hot]], axis=0)
             t = np.concatenate([[self.t_prev], times_s])
-            self._fire(hot, seq, t)
+            pix, ts, pol = self._fire(hot, seq, t)
+            # Chunks cover consecutive time spans, so sorting each one sorts the whole stream.
+            t_us = np.rint(ts * 1e6).astype(np.int64)
+            order = np.argsort(t_us)  # deterministic; the order of equal times is irrelevant
+            self.parts.append((pix[order], t_us[order], pol[order]))
         self.prev = frames[-1].copy()
         self.t_prev = float(times_s[-1])
 
-    def _fire(self, pix: np.ndarray, seq: np.ndarray, t: np.ndarray) -> None:
+    def _fire(self, pix: np.ndarray, seq: np.ndarray, t: np.ndarray):
+        """ESIM over frame intervals k = 0..K-1 for the pixels ``pix`` (signals ``seq``)."""
         ref, c_on, c_off = self.ref[pix], self.c_on[pix], self.c_off[pix]
+        out: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         for k in range(seq.shape[0] - 1):
             l0, l1 = seq[k], seq[k + 1]
-            while True:  # one pass per threshold crossed within this frame interval
-                up = l1 - ref >= c_on
-                down = ref - l1 >= c_off
-                idx = np.flatnonzero(up | down)
-                if idx.size == 0:
-                    break
-                pol = up[idx]
+            d = l1 - ref
+            up = d >= c_on
+            idx = np.flatnonzero(up | (d <= -c_off))
+            pol = up[idx]
+            while idx.size:  # one pass per threshold crossed within this frame interval
                 level = ref[idx] + np.where(pol, c_on[idx], -c_off[idx])
-                span = l1[idx] - l0[idx]
-                frac = np.clip((level - l0[idx]) / np.where(span == 0, 1, span), 0.0, 1.0)
-                ts = t[k] + frac * (t[k + 1] - t[k])
+                a, b = l0[idx], l1[idx]
+                span = b - a
+                frac = np.minimum(np.maximum((level - a) / np.where(span == 0, 1, span), 0), 1)
+                out.append((idx, t[k] + frac * (t[k + 1] - t[k]), pol))
                 ref[idx] = level
-                self._emit(pix[idx], ts, pol)
                 if self.config.noise_std > 0:
-                    c_on[idx] = np.where(
-                        pol, _thresholds(self.base_on[pix[idx]], self.config, self.rng), c_on[idx]
-                    )
-                    c_off[idx] = np.where(
-                        pol, c_off[idx], _thresholds(self.base_off[pix[idx]], self.config, self.rng)
-                    )
+                    g = pix[idx]
+                    new = self._noisy(np.where(pol, self.base_on[g], self.base_off[g]))
+                    c_on[idx] = np.where(pol, new, c_on[idx])
+                    c_off[idx] = np.where(pol, c_off[idx], new)
+                # Only pixels that just fired can cross again in this interval.
+                d = b - level
+                up = d >= c_on[idx]
+                keep = up | (d <= -c_off[idx])
+                idx, pol = idx[keep], up[keep]
         self.ref[pix], self.c_on[pix], self.c_off[pix] = ref, c_on, c_off
+        local, ts, pol = (np.concatenate(a) for a in zip(*out, strict=True))
+        g = pix[local]
+        if self.config.refractory_us > 0:
+            g, ts, pol = self._refractory(g, ts, pol)
+        return g, ts, pol
 
-    def _emit(self, pix: np.ndarray, ts: np.ndarray, pol: np.ndarray) -> None:
+    def _refractory(self, g: np.ndarray, ts: np.ndarray, pol: np.ndarray):
+        """Drop events closer than the refractory period to the pixel's previous kept event."""
+        order = np.lexsort((ts, g))
+        g, ts, pol = g[order], ts[order], pol[order]
+        starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+        rank = np.arange(g.size) - np.repeat(starts, np.diff(np.r_[starts, g.size]))
+        keep = np.zeros(g.size, bool)
         refractory = self.config.refractory_us * 1e-6
-        if refractory > 0:
-            keep = ts - self.last_t[pix] >= refractory
-            pix, ts, pol = pix[keep], ts[keep], pol[keep]
-            self.last_t[pix] = ts
-        self.out.append((pix, ts, pol))
+        for r in range(int(rank.max()) + 1 if g.size else 0):  # each pixel once per rank
+            i = np.flatnonzero(rank == r)
+            ok = ts[i] - self.last_t[g[i]] >= refractory
+            keep[i[ok]] = True
+            self.last_t[g[i[ok]]] = ts[i[ok]]
+        return g[keep], ts[keep], pol[keep]
 
     def collect(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """All events so far: pixel index, time (s), polarity (bool, True = ON), unsorted."""
-        if not self.out:
-            return np.zeros(0, np.int64), np.zeros(0), np.zeros(0, bool)
-        pix, ts, pol = (np.concatenate(parts) for parts in zip(*self.out, strict=True))
-        return pix, ts, pol
+        """All events so far, sorted by time: pixel index, t (µs), polarity (True = ON)."""
+        if not self.parts:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool)
+        pix, t_us, pol = (np.concatenate(parts) for parts in zip(*self.parts, strict=True))
+        return pix, t_us, pol
 
 
 def _noise_events(
@@ -212,25 +231,20 @@ def simulate(
         trajectory, camera, duration_s, config.max_px_per_frame, config.min_frame_rate_hz
     )
     first = renderer.render_log(trajectory.rotation_at(times[:1])).reshape(-1)
-    gen = _EventGenerator(first, 0.0, config, rng)
+    gen = _EventGenerator(first, config, rng)
     for i in range(1, times.size, config.chunk_frames):
         chunk = times[i : i + config.chunk_frames]
         frames = renderer.render_log(trajectory.rotation_at(chunk)).reshape(chunk.size, -1)
         gen.push(frames, chunk)
-    pix, ts, pol = gen.collect()
-    noise = _noise_events(config, first.size, duration_s, rng)
-    pix, ts, pol = (np.concatenate([a, b]) for a, b in zip((pix, ts, pol), noise, strict=True))
-    t_us = np.rint(ts * 1e6).astype(np.int64)
-    order = np.argsort(t_us, kind="stable")
-    events = EventArray.from_arrays(
-        pix[order] % camera.width,
-        pix[order] // camera.width,
-        t_us[order],
-        pol[order],
-        camera.width,
-        camera.height,
-        validate=False,
-    )
+    pix, t_us, pol = gen.collect()
+    noise_pix, noise_t, noise_pol = _noise_events(config, first.size, duration_s, rng)
+    if noise_pix.size:
+        pix, pol = np.concatenate([pix, noise_pix]), np.concatenate([pol, noise_pol])
+        t_us = np.concatenate([t_us, np.rint(noise_t * 1e6).astype(np.int64)])
+        order = np.argsort(t_us, kind="stable")
+        pix, t_us, pol = pix[order], t_us[order], pol[order]
+    y, x = np.divmod(pix, camera.width)
+    events = EventArray.from_arrays(x, y, t_us, pol, camera.width, camera.height, validate=False)
     gyro_t = np.rint(np.arange(round(duration_s * 1000) + 1) * 1000.0).astype(np.int64)
     gyro = GyroTrace.from_arrays(gyro_t, trajectory.omega_at(gyro_t / 1e6))
     attrs = {

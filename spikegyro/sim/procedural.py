@@ -14,6 +14,7 @@ All functions take a NumPy ``Generator``; intensities are linear, in (0, 1].
 from __future__ import annotations
 
 import numpy as np
+import scipy.fft
 from PIL import Image
 
 from spikegyro.sim.camera import Camera
@@ -39,10 +40,11 @@ def fractal_noise(
     # Longitude covers twice the angle of latitude per pixel count: measure both in cycles/width.
     f = np.hypot(fx, 2.0 * fy)
     amplitude = np.where(f >= min_cycles, np.maximum(f, 1e-9) ** (-beta / 2.0), 0.0)
-    spectrum = amplitude * (
-        rng.standard_normal(amplitude.shape) + 1j * rng.standard_normal(amplitude.shape)
-    )
-    field = np.fft.irfft2(spectrum, s=(height, width))
+    spectrum = np.empty(amplitude.shape, np.complex64)
+    spectrum.real = rng.standard_normal(amplitude.shape, np.float32)
+    spectrum.imag = rng.standard_normal(amplitude.shape, np.float32)
+    spectrum *= amplitude.astype(np.float32)
+    field = scipy.fft.irfft2(spectrum, s=(height, width), workers=1)
     field -= field.mean()
     return (field / max(field.std(), 1e-12)).astype(np.float32)
 

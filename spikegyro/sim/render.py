@@ -68,7 +68,8 @@ class Renderer:
         grid = np.empty((k, d.shape[2], 2), dtype=np.float32)
         # Contiguous temporaries, then one strided write each: much faster than strided math.
         np.multiply(np.arctan2(d[:, 0], d[:, 2]), self._scale[0], out=grid[..., 0])
-        lat = np.arcsin(np.clip(d[:, 1], -1.0, 1.0, out=d[:, 1]))
+        dy = np.minimum(np.maximum(d[:, 1], -1.0, out=d[:, 1]), 1.0, out=d[:, 1])
+        lat = np.arcsin(dy)
         np.multiply(lat, self._scale[1], out=grid[..., 1])
         out = F.grid_sample(
             self._texture,
