@@ -25,6 +25,7 @@ import numpy as np
 import torch
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import Progress
 from rich.table import Table as RichTable
 
@@ -43,7 +44,9 @@ from spikegyro.evaluate.report import (
 )
 from spikegyro.evaluate.spikes import spike_statistics, spike_table
 from spikegyro.events.io import atomic_path
-from spikegyro.models.registry import load_checkpoint
+from spikegyro.events.plot import plot_events_and_omega
+from spikegyro.models.official import load_official
+from spikegyro.models.registry import CHECKPOINT_FORMAT, load_checkpoint
 from spikegyro.train.data import InputSpec, Window, fixed_windows
 from spikegyro.train.infer import predict_windows, spec_of
 
@@ -67,23 +70,27 @@ def display_name(payload: dict[str, Any]) -> str:
 
 
 def _is_official(path: Path) -> bool:
+    """Whether ``path`` holds the official repository's weights rather than our format."""
     try:
         raw = torch.load(path, map_location="cpu", weights_only=False)
     except Exception:  # read_checkpoint will explain what is wrong with the file
         return False
-    return isinstance(raw, dict) and "model_state_dict" in raw
+    if not isinstance(raw, dict) or raw.get("format") == CHECKPOINT_FORMAT:
+        return False
+    return "model_state_dict" in raw or any(str(k).endswith("conv1.weight") for k in raw)
 
 
 def load_model(checkpoint: str | os.PathLike) -> tuple[torch.nn.Module, dict[str, Any], str]:
-    """Load a spikegyro checkpoint or the paper's official one; returns (model, payload, name)."""
+    """Load a spikegyro checkpoint or the paper's official one; returns (model, payload, name).
+
+    The official SNN-6 takes the paper's input: 100 ms of 240x180 spikes, omega every 1 ms.
+    """
     path = Path(checkpoint)
     if not path.exists():
         raise InputError(f"{path}: no such checkpoint file.")
     if _is_official(path):
-        from spikegyro.models.official import load_official
-
-        model, payload = load_official(path)
-        return model, payload, "SNN-6 (official)"
+        payload = {"model": "snn6", "input": InputSpec().as_dict(), "extra": {"official": True}}
+        return load_official(path), payload, "SNN-6 (official)"
     model, payload = load_checkpoint(path)
     return model, payload, display_name(payload)
 
@@ -173,27 +180,27 @@ def _example_figures(
     examples: list[int],
     name: str,
 ) -> list[FigureRef]:
-    if not examples:
-        return []
-    from spikegyro.events.plot import plot_events_and_omega
-
+    """The paper's Fig. 3 for each chosen window; returns their report entries."""
     refs = []
     for i in examples:
         w = windows[i]
-        fig = plot_events_and_omega(
-            w.events,
-            t_start_us=w.t_start_us,
-            omega_true=w.omega,
-            omega_pred=pred[i],
-            title=f"{name}: window {i} ({Path(w.source).name}, from {w.t_start_us / 1e3:g} ms)",
-        )
+        ends_s = (w.t_start_us + 1000 * np.arange(1, w.num_steps + 1)) / 1e6
         file = f"window_{i:05d}.png"
-        figures.save_figure(fig, out_dir / file)
+        plot_events_and_omega(
+            w.events,
+            ends_s,
+            w.omega,
+            pred[i],
+            out=out_dir / file,
+            title=f"{name}: window {i} ({Path(w.source).name}, "
+            f"t = {w.t_start_us / 1e3:g} to {w.t_end_us / 1e3:g} ms)",
+            t0_s=w.t_start_us / 1e6,
+        )
         refs.append(
             FigureRef(
-                f"Window {i}: events in space-time (ON red, OFF blue) above the predicted "
-                "(solid) and true (dashed) angular velocity on three axes (paper Fig. 3); "
-                f"{len(w.events):,} events.",
+                f"Window {i}: {len(w.events):,} events in space-time (ON red, OFF blue) above "
+                f"the true (solid) and {name}'s predicted (dashed) angular velocity on three "
+                "axes (paper Fig. 3); metrics count from 50 ms on.",
                 file,
             )
         )
@@ -388,20 +395,20 @@ def _evaluation_report(out_dir: Path, result: dict[str, Any], examples: list[Fig
 
 
 def _print_summary(console: Console, result: dict[str, Any], out_dir: Path) -> None:
-    table = RichTable(title=f"{result['data']['dir']} / {result['data']['split']}")
+    table = RichTable(title=escape(f"{result['data']['dir']} / {result['data']['split']}"))
     for col in ("model", "median rel. error", 'mean Eucl. error ("RMSE")', "RMSE"):
         table.add_column(col, justify="right" if col != "model" else "left")
     for key in ("model", "mean"):
         m = result[key]["metrics"]
         table.add_row(
-            result[key]["name"],
+            escape(result[key]["name"]),
             fmt(m["median_relative_error"]),
             f"{fmt(m['mean_euclidean_error_deg_s'], 1)} deg/s",
             f"{fmt(m['rmse_deg_s'], 1)} deg/s",
         )
     console.print(table)
     for w in result["warnings"]:
-        console.print(f"[yellow]warning:[/] {w}")
+        console.print(f"[yellow]warning:[/] {escape(w)}")
     console.print(f"wrote {out_dir}/metrics.json, predictions.npz, report.html, report.md")
 
 
@@ -511,7 +518,7 @@ def report(
     for name, m in models.items():
         s = m["metrics"]
         table.add_row(
-            name,
+            escape(name),
             fmt(s["median_relative_error"]),
             fmt(s["mean_euclidean_error_deg_s"], 1),
             fmt(s["rmse_deg_s"], 1),

@@ -37,6 +37,16 @@ AXIS_COLORS: dict[str, str] = {"tilt": "#1F77B4", "pan": "#2CA02C", "roll": "#D6
 AXIS_SYMBOLS = {"tilt": "ω_x", "pan": "ω_y", "roll": "ω_z"}
 
 DPI = 120
+BOX_CLIP = 2.0
+"""Largest |relative error| shown in the box plots: slow components make whiskers huge."""
+
+
+def _mark_empty(ax: Any, per_bin: Sequence[Mapping[str, Any]]) -> None:
+    """Write "no data" in the middle of each empty bin's slot."""
+    for i, b in enumerate(per_bin):
+        if b["n_pairs"] == 0:
+            ax.text(i, 0.8, "no data", transform=ax.get_xaxis_transform(), ha="center",
+                    va="center", fontsize=9, color="#555555")  # fmt: skip
 
 
 def model_color(name: str) -> str:
@@ -67,7 +77,7 @@ def median_relative_error_per_bin(
     names = list(per_bin_by_model)
     first = per_bin_by_model[names[0]]
     labels = [b["label"] for b in first]
-    fig = Figure(figsize=(min(12.0, 4.0 + len(labels) * (0.5 + 0.2 * len(names))), 4.4))
+    fig = Figure(figsize=(min(13.0, 5.5 + len(labels) * (0.5 + 0.2 * len(names))), 4.4))
     ax = fig.add_subplot()
     width = 0.8 / len(names)
     x = np.arange(len(labels))
@@ -85,9 +95,7 @@ def median_relative_error_per_bin(
             edgecolor="black",
             linewidth=0.5,
         )
-    for i, b in enumerate(first):
-        if b["n_pairs"] == 0:
-            ax.text(x[i], 0.02, "no data", ha="center", va="bottom", fontsize=8, rotation=90)
+    _mark_empty(ax, first)
     ax.set_xticks(x, [f"{lab}\nn={b['n_pairs']:,}" for lab, b in zip(labels, first, strict=True)])
     ax.set_xlabel("true angular speed ‖ω̂‖ [deg/s]  (n = evaluated 1 ms steps)")
     ax.set_ylabel("median relative error ‖ω − ω̂‖ / ‖ω̂‖ [-]")
@@ -95,7 +103,8 @@ def median_relative_error_per_bin(
     ax.set_title(title)
     ax.grid(axis="y", alpha=0.3)
     ax.set_axisbelow(True)
-    ax.legend(fontsize=8, ncol=min(len(names), 4), loc="upper right")
+    ax.set_xlim(-0.6, len(labels) - 0.4)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="model")
     fig.tight_layout()
     return fig
 
@@ -106,7 +115,7 @@ def axis_relative_error_boxes(per_bin: Sequence[Mapping[str, Any]], model_name: 
     Boxes span the quartiles, whiskers reach the furthest value within 1.5 IQR; outliers are not
     drawn. Reads the box statistics stored by :func:`spikegyro.evaluate.bins.per_bin_metrics`.
     """
-    fig = Figure(figsize=(max(7.0, 1.3 * len(per_bin)), 4.4))
+    fig = Figure(figsize=(max(8.5, 1.3 * len(per_bin) + 1.5), 4.4))
     ax = fig.add_subplot()
     width = 0.25
     lows, highs = [], []
@@ -126,21 +135,25 @@ def axis_relative_error_boxes(per_bin: Sequence[Mapping[str, Any]], model_name: 
                 boxprops={"facecolor": AXIS_COLORS[axis], "alpha": 0.8},
                 medianprops={"color": "black"},
             )
-        if b["n_pairs"] == 0:
-            ax.text(i, 0, "no data", ha="center", va="center", fontsize=8, rotation=90)
+    _mark_empty(ax, per_bin)
     ax.axhline(0.0, color="black", linewidth=0.8, linestyle=":")
     ax.set_xticks(range(len(per_bin)), [f"{b['label']}\nn={b['n_pairs']:,}" for b in per_bin])
     ax.set_xlim(-0.6, len(per_bin) - 0.4)
+    clipped = False
     if lows:
         span = max(abs(min(lows)), abs(max(highs)), 0.05) * 1.1
+        clipped = span > BOX_CLIP
+        span = min(span, BOX_CLIP)
         ax.set_ylim(-span, span)
     ax.set_xlabel("true angular speed ‖ω̂‖ [deg/s]  (n = evaluated 1 ms steps)")
-    ax.set_ylabel("signed relative error (ω_i − ω̂_i) / |ω̂_i| [-]")
+    ylabel = "signed relative error (ω_i − ω̂_i) / |ω̂_i| [-]"
+    ax.set_ylabel(ylabel + (f"\n(clipped at ±{BOX_CLIP:g})" if clipped else ""))
     ax.set_title(f"{model_name}: per-axis relative error per speed bin")
     ax.grid(axis="y", alpha=0.3)
     handles = [
         Patch(facecolor=AXIS_COLORS[a], alpha=0.8, label=f"{a} ({AXIS_SYMBOLS[a]})") for a in AXES
     ]
-    ax.legend(handles=handles, fontsize=8, loc="upper right")
+    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+              title="axis")  # fmt: skip
     fig.tight_layout()
     return fig

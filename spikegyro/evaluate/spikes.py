@@ -143,11 +143,14 @@ def spike_statistics(
     """:func:`layer_statistics` of an SNN over ``windows`` (summed over batches, all T steps).
 
     The model must provide ``forward_with_spikes(x) -> (out, [spikes per conv layer])`` and
-    ``conv_geometries() -> [ConvGeometry-like (kernel, stride)]``.
+    ``convs``, its spiking convolutions (``weight`` (C_out, C_in, k, k), ``stride``, no padding),
+    as :class:`spikegyro.models.snn6.SNN6` does.
     """
     if not windows:
         return {"windows": 0, "note": "no window with events to measure spikes on"}
-    geometries = [ConvGeometry(int(k), int(s)) for k, s in model.conv_geometries()]
+    if any(conv.padding for conv in model.convs):
+        raise ValueError("SynOps counting assumes unpadded convolutions")
+    geometries = [ConvGeometry(conv.weight.shape[-1], conv.stride) for conv in model.convs]
     totals: dict[str, Any] | None = None
     for i in range(0, len(windows), batch_size):
         x = torch.stack([encode_window(w, spec) for w in windows[i : i + batch_size]]).to(device)

@@ -1,0 +1,141 @@
+"""`evaluate` and `report` end to end on a tiny dataset and a randomly initialised checkpoint."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+import spikegyro.models  # noqa: F401  (registers the models)
+from spikegyro.errors import InputError
+from spikegyro.evaluate import compare_runs, run_evaluation
+from spikegyro.events.core import EventArray, GyroTrace, Recording
+from spikegyro.events.io import write_recording
+from spikegyro.models.registry import build_model, save_checkpoint
+
+SENSOR = (64, 64)
+
+
+def _sequence(path: Path, rng: np.random.Generator, duration_ms: int, num_events: int):
+    """Random events and a slowly varying rotation of a few 100 deg/s."""
+    t = np.sort(rng.integers(0, duration_ms * 1000, num_events))
+    events = EventArray.from_arrays(
+        rng.integers(0, SENSOR[0], t.size), rng.integers(0, SENSOR[1], t.size), t,
+        rng.integers(0, 2, t.size), *SENSOR,
+    )  # fmt: skip
+    gyro_t = np.arange(0, duration_ms * 1000 + 1, 1000)
+    omega = np.radians(rng.normal(0, 150, 3)) + np.radians(30) * np.sin(gyro_t / 4e4)[:, None]
+    write_recording(path, Recording(events, GyroTrace.from_arrays(gyro_t, omega)))
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("data")
+    rng = np.random.default_rng(7)
+    for i in range(2):
+        _sequence(root / "train" / f"seq_{i:06d}.h5", rng, 200, 2000)
+    # Three 100 ms test windows; the last holds no events.
+    _sequence(root / "test" / "seq_000000.h5", rng, 200, 2000)
+    _sequence(root / "test" / "seq_000001.h5", rng, 100, 0)
+    return root
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("ckpt") / "snn6.pt"
+    model = build_model("snn6")
+    spec = {"representation": "spikes", "sensor": list(SENSOR), "scale": 1.0, "window_ms": 100,
+            "output": "per_step"}  # fmt: skip
+    save_checkpoint(path, model, name="snn6", model_kwargs={}, input_spec=spec)
+    return path
+
+
+@pytest.fixture(scope="module")
+def evaluated(dataset, checkpoint, tmp_path_factory) -> tuple[Path, dict]:
+    out = tmp_path_factory.mktemp("eval")
+    result = run_evaluation(dataset, checkpoint, "test", out, num_examples=2, spike_windows=1)
+    return out, result
+
+
+def test_outputs_and_report_hold_every_figure_and_table(evaluated):
+    out, result = evaluated
+    assert result["model"]["name"] == "SNN-6"
+    for name in ("metrics.json", "predictions.npz", "bins.png", "axes.png", "report.md"):
+        assert (out / name).exists(), name
+    examples = sorted(p.name for p in out.glob("window_*.png"))
+    assert len(examples) == 2
+    page = (out / "report.html").read_text()
+    # Every PNG is embedded, none is linked (the page is self-contained).
+    assert page.count("data:image/png;base64,") == 2 + len(examples)
+    assert not re.search(r'src="(?!data:)', page)
+    assert page.count("<table>") == 4  # overall, per axis, per bin, spikes
+    for text in ("SNN-6", "Mean", "0.26", "66.3", "paper", "[500, inf)"):
+        assert text in page, text
+    md = (out / "report.md").read_text()
+    for name in ["bins.png", "axes.png", *examples]:
+        assert f"]({name})" in md
+
+
+def test_mean_predictor_is_the_training_mean_and_scored_beside_the_model(evaluated, dataset):
+    _, result = evaluated
+    samples = []
+    for path in sorted((dataset / "train").glob("*.h5")):
+        with h5py.File(path) as f:
+            samples.append(f["ang_xyz"][:])
+    expected = np.concatenate(samples).mean(axis=0)
+    np.testing.assert_allclose(result["mean"]["omega_rad_s"], expected)
+    gt = np.load(Path(evaluated[0]) / "predictions.npz")["gt"][:, 50:]
+    err = np.degrees(np.linalg.norm(gt - expected, axis=-1))
+    assert result["mean"]["metrics"]["mean_euclidean_error_deg_s"] == pytest.approx(err.mean())
+
+
+def test_window_without_events_and_empty_bins_are_reported(evaluated):
+    _, result = evaluated
+    assert result["data"]["windows"] == 3
+    assert result["data"]["windows_without_events"] == 1
+    text = " ".join(result["warnings"])
+    assert "1 of 3 windows hold no events" in text
+    assert "[500, inf)" in text  # no step that fast in this data
+    assert result["model"]["spikes"]["windows"] == 1
+    rates = [layer["rate_hz"] for layer in result["model"]["spikes"]["layers"][:-1]]
+    assert len(rates) == 5 and all(r >= 0 for r in rates)
+
+
+def test_evaluating_twice_gives_identical_metrics(evaluated, dataset, checkpoint, tmp_path):
+    out, _ = evaluated
+    run_evaluation(dataset, checkpoint, "test", tmp_path, num_examples=0, spike_windows=1)
+    assert (tmp_path / "metrics.json").read_bytes() == (out / "metrics.json").read_bytes()
+
+
+def test_checkpoint_of_another_resolution_is_refused(dataset, tmp_path):
+    path = tmp_path / "wrong.pt"
+    spec = {"representation": "spikes", "sensor": [96, 72], "scale": 1.0, "window_ms": 100}
+    save_checkpoint(path, build_model("snn6"), name="snn6", model_kwargs={}, input_spec=spec)
+    with pytest.raises(InputError, match="trained on 96x72 events"):
+        run_evaluation(dataset, path, "test", tmp_path / "out")
+
+
+def test_bad_arguments_are_refused(dataset, checkpoint, tmp_path):
+    with pytest.raises(InputError, match="exactly one"):
+        run_evaluation(dataset, None, "test", tmp_path)
+    with pytest.raises(InputError, match="no such checkpoint"):
+        run_evaluation(dataset, tmp_path / "missing.pt", "test", tmp_path)
+    with pytest.raises(InputError, match="split"):
+        run_evaluation(dataset, checkpoint, "nope", tmp_path)
+
+
+def test_report_compares_runs_beside_the_paper(evaluated, tmp_path):
+    out, result = evaluated
+    models = compare_runs([out, out], tmp_path)
+    assert list(models) == ["SNN-6", f"SNN-6 [{out.name}]", "Mean"]
+    page = (tmp_path / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 1
+    assert "226.9" in page and "Table I" in page
+    saved = json.loads((tmp_path / "comparison.json").read_text())
+    assert saved["SNN-6"]["metrics"] == result["model"]["metrics"]
+    with pytest.raises(InputError, match=r"no metrics\.json"):
+        compare_runs([tmp_path / "nothing"], tmp_path / "x")
