@@ -129,7 +129,7 @@ class StreamingSNN:
         shapes = [spec.input_shape, *spec.layer_shapes()]
         n_layers = len(spec.layers)
         geo = np.zeros((n_layers, 8), dtype=np.int64)
-        par = np.zeros((n_layers, 8), dtype=np.float64)
+        par = np.zeros((n_layers, 10), dtype=np.float64)
         weights, w_off, st_off, pos_off = [], [0], [0], [0]
         lengths = []
         for i, layer in enumerate(spec.layers):
@@ -140,7 +140,8 @@ class StreamingSNN:
             big_l, big_m = len(layer.srm_kernel), len(layer.ref_kernel)
             lengths.append((big_l, big_m))
             geo[i] = (cin, hin, win, cout, hout, wout, layer.stride, kh * 1000 + kw)
-            par[i] = (c, p, p**big_l, big_l * p**big_l, a, q, a * q ** (big_m - 1), layer.theta)
+            par[i] = (c, p, -(p**big_l), -big_l * p**big_l, a, q, -a * q ** (big_m - 1),
+                      layer.theta, 1.0, 0.0)  # fmt: skip
             weights.append(np.ascontiguousarray(layer.weight.transpose(2, 3, 1, 0)).ravel())
             w_off.append(w_off[-1] + weights[-1].size)
             st_off.append(st_off[-1] + cout * hout * wout)
@@ -156,7 +157,8 @@ class StreamingSNN:
             ring_cap.append(c_ * h_ * w_)
         ring_off = np.concatenate([[0], np.cumsum(np.array(ring_len) * np.array(ring_cap))])
         cnt_off = np.concatenate([[0], np.cumsum(ring_len)])
-        self._geo, self._par, self._klen = geo, par, klen
+        # parameters in the state's dtype, so the inner loops never mix precisions
+        self._geo, self._par, self._klen = geo, par.astype(dtype), klen
         self._w = np.concatenate(weights).astype(dtype)
         self._w_off = np.array(w_off, dtype=np.int64)
         self._st_off = np.array(st_off, dtype=np.int64)
@@ -205,7 +207,7 @@ class StreamingSNN:
         return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _scatter(spikes, cnt, g, w, w0, st, s0, last, p0, t, amp_a, amp_d, use_d):  # pragma: no cover
     """Add ``amp * W[:, ci, ky, kx]`` to A (and D) of each output pixel an input spike reaches."""
     cin, win, cout, hout, wout, stride, kk = g[0], g[2], g[3], g[4], g[5], g[6], g[7]
@@ -233,14 +235,18 @@ def _scatter(spikes, cnt, g, w, w0, st, s0, last, p0, t, amp_a, amp_d, use_d):  
                 last[p0 + pos] = t
                 wb = w0 + ((ky * kw + kx) * cin + ci) * cout
                 n = s0 + pos * cout
+                # contiguous views: the channel loops vectorise (no index wrap-around checks)
+                col = w[wb : wb + cout]
+                row = st[0, n : n + cout]
                 for co in range(cout):
-                    st[0, n + co] += amp_a * w[wb + co]
+                    row[co] += amp_a * col[co]
                 if use_d:
+                    row = st[1, n : n + cout]
                     for co in range(cout):
-                        st[1, n + co] += amp_d * w[wb + co]
+                        row[co] += amp_d * col[co]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _run_steps(  # pragma: no cover
     inp, offs, out, tbox, geo, par, klen, w, w_off, st, st_off, last, pos_off,
     ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off, seen, fc, kout, hring, spike_counts,
@@ -262,9 +268,9 @@ def _run_steps(  # pragma: no cover
         ring_cnt[cnt_off[0] + t % ring_len[0]] = m
         for li in range(n_layers):
             g = geo[li]
-            c, p, pl, lpl, a, q, aqm, theta = (
-                par[li, 0], par[li, 1], par[li, 2], par[li, 3],
-                par[li, 4], par[li, 5], par[li, 6], par[li, 7],
+            c, p, tail_a, tail_d, a, q, tail_r, theta, one, zero = (
+                par[li, 0], par[li, 1], par[li, 2], par[li, 3], par[li, 4],
+                par[li, 5], par[li, 6], par[li, 7], par[li, 8], par[li, 9],
             )  # fmt: skip
             big_l, big_m = klen[li, 0], klen[li, 1]
             s0, p0, w0 = st_off[li], pos_off[li], w_off[li]
@@ -273,19 +279,31 @@ def _run_steps(  # pragma: no cover
             slot = t % ring_len[li]
             base = ring_off[li] + slot * cap_in
             cnt = ring_cnt[cnt_off[li] + slot]
-            _scatter(ring[base : base + cnt], cnt, g, w, w0, st, s0, last, p0, t, 1.0, 0.0, False)
+            _scatter(ring[base : base + cnt], cnt, g, w, w0, st, s0, last, p0, t, one, zero, False)
             if t >= big_l:
                 slot = (t - big_l) % ring_len[li]
                 base = ring_off[li] + slot * cap_in
                 cnt = ring_cnt[cnt_off[li] + slot]
                 _scatter(
-                    ring[base : base + cnt], cnt, g, w, w0, st, s0, last, p0, t, -pl, -lpl, True
+                    ring[base : base + cnt],
+                    cnt,
+                    g,
+                    w,
+                    w0,
+                    st,
+                    s0,
+                    last,
+                    p0,
+                    t,
+                    tail_a,
+                    tail_d,
+                    True,
                 )
             # refractory feedback of this layer's own spikes, one step and M steps ago
             cout = g[3]
             for lag in (1, big_m):
                 if t >= lag:
-                    amp = a if lag == 1 else -aqm
+                    amp = a if lag == 1 else tail_r
                     slot = (t - lag) % ring_len[li + 1]
                     base = ring_off[li + 1] + slot * cap_out
                     for j in range(ring_cnt[cnt_off[li + 1] + slot]):
@@ -303,21 +321,25 @@ def _run_steps(  # pragma: no cover
                 if age > horizon:
                     continue
                 n0 = s0 + pos * cout
+                ra, rd, rr = st[0, n0 : n0 + cout], st[1, n0 : n0 + cout], st[2, n0 : n0 + cout]
                 if age == horizon:
-                    for co in range(cout):
-                        st[0, n0 + co] = 0.0
-                        st[1, n0 + co] = 0.0
-                        st[2, n0 + co] = 0.0
+                    ra[:] = 0.0
+                    rd[:] = 0.0
+                    rr[:] = 0.0
                     continue
+                # vectorised: the largest potential; the spike list only when someone fires
+                top = c * rd[0] + rr[0]
+                for co in range(1, cout):
+                    top = max(top, c * rd[co] + rr[co])
+                if top >= theta:
+                    for co in range(cout):
+                        if c * rd[co] + rr[co] >= theta:
+                            ring[obase + n_spk] = n0 - s0 + co
+                            n_spk += 1
                 for co in range(cout):
-                    n = n0 + co
-                    aa, dd, rr = st[0, n], st[1, n], st[2, n]
-                    if c * dd + rr >= theta:
-                        ring[obase + n_spk] = n - s0
-                        n_spk += 1
-                    st[1, n] = p * (dd + aa)
-                    st[0, n] = p * aa
-                    st[2, n] = q * rr
+                    rd[co] = p * (rd[co] + ra[co])
+                    ra[co] = p * ra[co]
+                    rr[co] = q * rr[co]
             ring_cnt[cnt_off[li + 1] + slot] = n_spk
             spike_counts[li] += n_spk
         # -- readout: global average of the last layer's spikes -> dense -> psp (exact FIR)
