@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import json
 import re
+import sys
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
+import torch
+from typer.testing import CliRunner
 
 import spikegyro.models  # noqa: F401  (registers the models)
+from spikegyro.cli import app, main
 from spikegyro.errors import InputError
 from spikegyro.evaluate import compare_runs, run_evaluation
 from spikegyro.events.core import EventArray, GyroTrace, Recording
@@ -139,3 +143,50 @@ def test_report_compares_runs_beside_the_paper(evaluated, tmp_path):
     assert saved["SNN-6"]["metrics"] == result["model"]["metrics"]
     with pytest.raises(InputError, match=r"no metrics\.json"):
         compare_runs([tmp_path / "nothing"], tmp_path / "x")
+
+
+def test_official_checkpoint_is_recognised_and_checked_against_the_data(dataset, tmp_path):
+    model = build_model("snn6")
+    state = {f"conv{i}.weight": c.weight.detach()[..., None] for i, c in enumerate(model.convs, 1)}
+    state["fc.weight"] = model.fc.weight.detach()[..., None, None, None]
+    path = tmp_path / "official.pth"
+    torch.save({"model_state_dict": state, "epoch": 1}, path)
+    # The paper's network takes 240x180 events; the tiny dataset is 64x64.
+    with pytest.raises(InputError, match=r"official.pth: the model was trained on 240x180"):
+        run_evaluation(dataset, path, "test", tmp_path / "out")
+
+
+def test_cmax_is_scored_under_its_name_and_nan_steps_count_as_zero(dataset, tmp_path, monkeypatch):
+    calls = []
+
+    def fake_cmax(windows, progress=None):
+        calls.append(len(windows))
+        pred = np.stack([w.omega for w in windows]).astype(np.float64)
+        pred[:, 60:70] = np.nan  # e.g. no estimate yet
+        return pred
+
+    monkeypatch.setattr("spikegyro.baselines.cmax.predict_windows", fake_cmax)
+    result = run_evaluation(dataset, None, "test", tmp_path, model="cmax", num_examples=0)
+    assert calls == [3]
+    assert result["model"]["name"] == "CMax" and "spikes" not in result["model"]
+    assert result["model"]["nonfinite_predictions"] == 3 * 10
+    # Perfect except 10 of 50 evaluated steps predicted as 0: those have relative error 1.
+    rel = result["model"]["metrics"]
+    assert rel["median_relative_error"] == pytest.approx(0.0)
+    gt = np.load(tmp_path / "predictions.npz")["gt"]
+    expected = np.degrees(np.linalg.norm(gt[:, 60:70], axis=-1)).sum() / (3 * 50)
+    assert rel["mean_euclidean_error_deg_s"] == pytest.approx(expected)
+
+
+def test_cli_report_and_user_errors(evaluated, tmp_path, monkeypatch, capsys):
+    out, _ = evaluated
+    runner = CliRunner()
+    done = runner.invoke(app, ["report", str(out), "--out", str(tmp_path / "cmp")])
+    assert done.exit_code == 0, done.output
+    assert (tmp_path / "cmp" / "report.html").exists()
+    monkeypatch.setattr(sys, "argv", ["spikegyro", "report", str(tmp_path / "none"), "--out", "x"])
+    with pytest.raises(SystemExit) as exited:
+        main()
+    assert exited.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and "no metrics.json" in err and len(err.splitlines()) == 1
