@@ -2,10 +2,11 @@
 
 Each evaluated (window, step) pair falls in the bin ``[lo, hi)`` holding its true speed
 ||omega_hat|| in deg/s. The edges are fixed, not data-driven, so runs on different data or models
-stay comparable: :data:`SPEED_BIN_EDGES_DEG_S` = 0, 100, 200, 300, 400, 500, inf deg/s. With the
-paper's per-axis zero-mean random rotations (mean speed about 220 deg/s, so per-axis standard
-deviation about 140 deg/s and a Maxwell-distributed speed) these hold about 9, 36, 36, 16, 3 and
-0.4 % of the pairs; the last bin is open so no pair is ever dropped.
+stay comparable: :data:`SPEED_BIN_EDGES_DEG_S` = 0, 100, 200, 300, 400, 500, inf deg/s; the last
+bin is open, so no pair is ever dropped. For the simulator's default rotations (per-axis rates
+Laplace-distributed with scale 105 deg/s, mean speed about 220 deg/s) the
+bins hold about 16, 35, 26, 13, 6 and 4 % of the pairs (Monte Carlo, 10^6 draws); for Gaussian
+per-axis rates of the same mean speed, 9, 36, 36, 15, 3 and 0.4 %.
 """
 
 from __future__ import annotations
