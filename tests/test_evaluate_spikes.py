@@ -53,4 +53,5 @@ def test_layer_statistics_rates_and_totals():
     assert conv1["rate_hz"] == pytest.approx(4 / (16 * 0.02))
     assert conv1["dense_macs_per_step"] == 4 * 2 * 2 * 2 * 9
     assert readout["synops"] == 4 * 3
+    assert readout["dense_macs_per_step"] == 16 * 3  # every layer-1 neuron to 3 outputs
     assert stats["synops_per_s"] == pytest.approx((20 + 12) / 0.02)

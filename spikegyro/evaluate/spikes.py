@@ -9,11 +9,12 @@ receptive field ``[i*s, i*s + k)`` holds ``y`` (about ``(k / s)^2 * C_out`` away
     SynOps(layer) = C_out * sum over (c, y, x, t) of s_in[c, y, x, t] * n(y) * n(x)
 
 The input spikes of conv1 are the binned events; conv5's spikes feed GASP and the 256 -> 3
-readout, costing 3 synaptic operations each (the spatial mean is a fixed scaling, folded into the
-readout weights). Rates are per second of input (steps of 1 ms). Beside them we report the
-multiply-accumulates (MACs) the same network needs per second when run densely every 1 ms,
-``sum over layers of C_out * H_out * W_out * C_in * k^2 * 1000``, so their ratio is the saving
-that event-driven execution gets from sparsity.
+readout, costing 3 synaptic operations each: the spatial mean is a fixed scaling folded into the
+readout weights, so GASP + readout is one dense layer from every conv5 neuron to 3 outputs.
+Rates are per second of input (steps of 1 ms). Beside them we report the multiply-accumulates
+(MACs) the same network needs per second when run densely every 1 ms (conv layers:
+``C_out * H_out * W_out * C_in * k^2``, readout: ``3 * C * H * W`` per step), so their ratio is
+the saving that event-driven execution gets from sparsity.
 """
 
 from __future__ import annotations
@@ -116,7 +117,7 @@ def layer_statistics(
             "spikes": None,
             "rate_hz": None,
             "synops": round(last) * readout_outputs,
-            "dense_macs_per_step": int(previous.shape[1]) * readout_outputs,
+            "dense_macs_per_step": int(np.prod(previous.shape[1:4])) * readout_outputs,
         }
     )
     synops = sum(layer["synops"] for layer in layers)
