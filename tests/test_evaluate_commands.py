@@ -71,7 +71,7 @@ def test_outputs_and_report_hold_every_figure_and_table(evaluated):
     for name in ("metrics.json", "predictions.npz", "bins.png", "axes.png", "report.md"):
         assert (out / name).exists(), name
     examples = sorted(p.name for p in out.glob("window_*.png"))
-    assert len(examples) == 2
+    assert examples == ["window_00000.png", "window_00001.png"]  # window 2 has no events
     page = (out / "report.html").read_text()
     # Every PNG is embedded, none is linked (the page is self-contained).
     assert page.count("data:image/png;base64,") == 2 + len(examples)
@@ -190,3 +190,18 @@ def test_cli_report_and_user_errors(evaluated, tmp_path, monkeypatch, capsys):
     assert exited.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith("error:") and "no metrics.json" in err and len(err.splitlines()) == 1
+
+
+def test_without_a_training_split_the_mean_predictor_says_zero(dataset, tmp_path, monkeypatch):
+    data = tmp_path / "data"
+    (data / "test").mkdir(parents=True)
+    for path in (dataset / "test").glob("*.h5"):
+        (data / "test" / path.name).write_bytes(path.read_bytes())
+    monkeypatch.setattr(
+        "spikegyro.baselines.cmax.predict_windows",
+        lambda windows, progress=None: np.zeros((len(windows), 100, 3)),
+    )
+    result = run_evaluation(data, None, "test", tmp_path / "out", model="cmax", num_examples=0)
+    assert result["mean"]["omega_rad_s"] == [0.0, 0.0, 0.0]
+    assert any("mean predictor uses omega = 0" in w for w in result["warnings"])
+    assert result["mean"]["metrics"] == result["model"]["metrics"]  # both predict zeros
