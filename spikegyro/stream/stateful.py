@@ -16,19 +16,23 @@ feeding each input a second time, L (or M) steps later, with the weight of the k
     R[t] = q R[t-1] + a s[t-1] - a q^(M-1) s[t-M]
 
 (the impulse response of ``c D`` is ``c k p^k`` for k < L and exactly 0 from k = L on). The
-delayed inputs come from ring buffers of past spike *lists*, so they are sparse too.
+synaptic input ``x[t] = W * s_in[t]`` is kept in a ring of the last L + 1 steps, so the delayed
+term is read back instead of being scattered a second time; past spike *lists* (sparse) feed the
+refractory tail.
 
 Work per step:
 
 - sparse: each input spike scatters one column of 3x3 weights (``Cout`` values per reached
-  output pixel) into ``A``, now and (with the tail weights) L steps later; spikes touch ``R``;
+  output pixel) into this step's slot of the ring; each output spike touches its own ``R``;
 - dense, but only over output pixels touched in the last ``max(L, M)`` steps: one fused pass
-  that thresholds ``u`` and advances the three recursions. A pixel untouched for longer holds
-  exactly zero state (every contribution has been cancelled), so it is skipped.
+  that takes in ``x[t]`` and ``x[t-L]``, thresholds ``u`` and advances the recursions. A pixel
+  untouched for longer holds exactly zero state (every contribution has been cancelled), so it
+  is skipped.
 
 The kernels run in Numba (compiled once, cached on disk): the inner loops are scatter-adds and
 branchy per-pixel passes that vectorised NumPy/torch would either densify or pay for in
 per-call overhead (a step is ~100 µs of work; a torch op costs ~5-10 µs to dispatch).
+``bench/streaming.py`` measures it against the naive dense execution.
 """
 
 from __future__ import annotations
@@ -129,8 +133,8 @@ class StreamingSNN:
         shapes = [spec.input_shape, *spec.layer_shapes()]
         n_layers = len(spec.layers)
         geo = np.zeros((n_layers, 8), dtype=np.int64)
-        par = np.zeros((n_layers, 10), dtype=np.float64)
-        weights, w_off, st_off, pos_off = [], [0], [0], [0]
+        par = np.zeros((n_layers, 8), dtype=np.float64)
+        weights, w_off, st_off, pos_off, z_off = [], [0], [0], [0], [0]
         lengths = []
         for i, layer in enumerate(spec.layers):
             (cin, hin, win), (cout, hout, wout) = shapes[i], shapes[i + 1]
@@ -140,37 +144,34 @@ class StreamingSNN:
             big_l, big_m = len(layer.srm_kernel), len(layer.ref_kernel)
             lengths.append((big_l, big_m))
             geo[i] = (cin, hin, win, cout, hout, wout, layer.stride, kh * 1000 + kw)
+            # tail weights: A gets -p^L x[t-L], D gets -L p^L x[t-L], R gets -a q^(M-1) s[t-M]
             par[i] = (c, p, -(p**big_l), -big_l * p**big_l, a, q, -a * q ** (big_m - 1),
-                      layer.theta, 1.0, 0.0)  # fmt: skip
+                      layer.theta)  # fmt: skip
             weights.append(np.ascontiguousarray(layer.weight.transpose(2, 3, 1, 0)).ravel())
             w_off.append(w_off[-1] + weights[-1].size)
             st_off.append(st_off[-1] + cout * hout * wout)
             pos_off.append(pos_off[-1] + hout * wout)
+            z_off.append(z_off[-1] + (big_l + 1) * cout * hout * wout)
         klen = np.array(lengths, dtype=np.int64)  # (layers, 2): L, M
-        # ring b holds the spike lists entering layer b (b = 0: the input events); it must reach
-        # back L steps of layer b (tail of the psp) and M steps of layer b - 1 (refractory tail).
-        ring_len, ring_cap = [], []
-        for b in range(n_layers + 1):
-            need = [klen[b, 0] if b < n_layers else 1, klen[b - 1, 1] if b > 0 else 1]
-            ring_len.append(int(max(need)) + 1)
-            c_, h_, w_ = shapes[b]
-            ring_cap.append(c_ * h_ * w_)
+        # spike-list ring b holds the spikes entering layer b (b = 0: the input events); it
+        # reaches back M steps of layer b - 1, for the refractory tail.
+        ring_len = [2] + [int(m) + 1 for m in klen[:, 1]]
+        ring_cap = [c_ * h_ * w_ for c_, h_, w_ in shapes]
         ring_off = np.concatenate([[0], np.cumsum(np.array(ring_len) * np.array(ring_cap))])
-        cnt_off = np.concatenate([[0], np.cumsum(ring_len)])
         # parameters in the state's dtype, so the inner loops never mix precisions
         self._geo, self._par, self._klen = geo, par.astype(dtype), klen
         self._w = np.concatenate(weights).astype(dtype)
         self._w_off = np.array(w_off, dtype=np.int64)
         self._st_off = np.array(st_off, dtype=np.int64)
         self._pos_off = np.array(pos_off, dtype=np.int64)
+        self._z_off = np.array(z_off, dtype=np.int64)
         self._ring_len = np.array(ring_len, dtype=np.int64)
         self._ring_cap = np.array(ring_cap, dtype=np.int64)
         self._ring_off = ring_off.astype(np.int64)
-        self._cnt_off = cnt_off.astype(np.int64)
+        self._cnt_off = np.concatenate([[0], np.cumsum(ring_len)]).astype(np.int64)
         c_last, h_last, w_last = shapes[-1]
-        self._fc = np.asarray(spec.fc_weight, dtype=np.float64).reshape(-1, c_last) / (
-            h_last * w_last
-        )
+        fc = np.asarray(spec.fc_weight, dtype=np.float64).reshape(-1, c_last)
+        self._fc = fc / (h_last * w_last)  # GASP's mean folded into the readout
         self._out_kernel = np.asarray(spec.out_kernel, dtype=np.float64)
         self._dtype = dtype
         self.reset()
@@ -182,8 +183,8 @@ class StreamingSNN:
 
     def reset(self) -> None:
         """Clear all state (as at the start of a recording)."""
-        n_state = int(self._st_off[-1])
-        self._state = np.zeros((3, n_state), dtype=self._dtype)  # A, D, R
+        self._state = np.zeros((3, int(self._st_off[-1])), dtype=self._dtype)  # A, D, R
+        self._z = np.zeros(int(self._z_off[-1]), dtype=self._dtype)
         self._last = np.full(int(self._pos_off[-1]), _NEG_BIG, dtype=np.int64)
         self._ring = np.zeros(int(self._ring_off[-1]), dtype=np.int32)
         self._ring_cnt = np.zeros(int(self._cnt_off[-1]), dtype=np.int64)
@@ -199,20 +200,20 @@ class StreamingSNN:
         out = np.zeros((len(step_offsets) - 1, self._fc.shape[0]), dtype=np.float64)
         _run_steps(
             input_index, step_offsets, out, self._t, self._geo, self._par, self._klen,
-            self._w, self._w_off, self._state, self._st_off, self._last, self._pos_off,
-            self._ring, self._ring_off, self._ring_len, self._ring_cap, self._ring_cnt,
-            self._cnt_off,
-            self._seen, self._fc, self._out_kernel, self._h, self.spike_counts,
+            self._w, self._w_off, self._state, self._st_off, self._z, self._z_off, self._last,
+            self._pos_off, self._ring, self._ring_off, self._ring_len, self._ring_cap,
+            self._ring_cnt, self._cnt_off, self._seen, self._fc, self._out_kernel, self._h,
+            self.spike_counts,
         )  # fmt: skip
         return out
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _scatter(spikes, cnt, g, w, w0, st, s0, last, p0, t, amp_a, amp_d, use_d):  # pragma: no cover
-    """Add ``amp * W[:, ci, ky, kx]`` to A (and D) of each output pixel an input spike reaches."""
+def _scatter(spikes, g, w, w0, z, zb, last, p0, t):  # pragma: no cover
+    """Add ``W[:, ci, ky, kx]`` to the synaptic input ``z`` of each output pixel a spike reaches."""
     cin, win, cout, hout, wout, stride, kk = g[0], g[2], g[3], g[4], g[5], g[6], g[7]
     kh, kw = kk // 1000, kk % 1000
-    for j in range(cnt):
+    for j in range(spikes.shape[0]):
         idx = spikes[j]
         ci = idx % cin
         pix = idx // cin
@@ -233,25 +234,74 @@ def _scatter(spikes, cnt, g, w, w0, st, s0, last, p0, t, amp_a, amp_d, use_d):  
                     continue
                 pos = oy * wout + ox
                 last[p0 + pos] = t
+                # contiguous views: the channel loop vectorises (no index wrap-around checks)
                 wb = w0 + ((ky * kw + kx) * cin + ci) * cout
-                n = s0 + pos * cout
-                # contiguous views: the channel loops vectorise (no index wrap-around checks)
                 col = w[wb : wb + cout]
-                row = st[0, n : n + cout]
+                row = z[zb + pos * cout : zb + (pos + 1) * cout]
                 for co in range(cout):
-                    row[co] += amp_a * col[co]
-                if use_d:
-                    row = st[1, n : n + cout]
-                    for co in range(cout):
-                        row[co] += amp_d * col[co]
+                    row[co] += col[co]
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
+def _advance(st, z, mask, n0, n1, zn0, zo0, par):  # pragma: no cover
+    """Neurons ``n0..n1`` (flat): take in x[t] and x[t-L], mark u >= theta, step the recursions.
+
+    One branch-free loop over contiguous memory, so it vectorises; returns how many fired.
+    """
+    c, p, tail_a, tail_d, q, theta = par[0], par[1], par[2], par[3], par[5], par[7]
+    ra, rd, rr = st[0, n0:n1], st[1, n0:n1], st[2, n0:n1]
+    zn, zo, mk = z[zn0 : zn0 + n1 - n0], z[zo0 : zo0 + n1 - n0], mask[: n1 - n0]
+    fired = 0
+    for i in range(n1 - n0):
+        a = ra[i] + zn[i] + tail_a * zo[i]
+        d = rd[i] + tail_d * zo[i]
+        spike = c * d + rr[i] >= theta
+        mk[i] = spike
+        fired += spike
+        rd[i] = p * (d + a)
+        ra[i] = p * a
+        rr[i] = q * rr[i]
+        zo[i] = 0.0
+    return fired
+
+
+@numba.njit(cache=True, nogil=True)
+def _layer_pass(st, s0, z, z_new, z_old, last, p0, n_pos, cout, t, horizon, par, mask, out):
+    """Advance every pixel touched in the last ``horizon`` steps, in runs of adjacent pixels;
+    write the flat indices of the neurons that fired to ``out``; returns their number."""
+    n_spk = 0
+    pos = 0
+    while pos < n_pos:
+        age = t - last[p0 + pos]
+        if age > horizon:
+            pos += 1
+            continue
+        if age == horizon:  # every contribution has expired: drop the rounding residue
+            n0 = s0 + pos * cout
+            st[:, n0 : n0 + cout] = 0.0
+            pos += 1
+            continue
+        end = pos + 1
+        while end < n_pos and t - last[p0 + end] < horizon:
+            end += 1
+        n0, n1 = s0 + pos * cout, s0 + end * cout
+        fired = _advance(st, z, mask, n0, n1, z_new + pos * cout, z_old + pos * cout, par)
+        if fired:
+            for i in range(n1 - n0):
+                if mask[i]:
+                    out[n_spk] = n0 - s0 + i
+                    n_spk += 1
+        pos = end
+    return n_spk
+
+
+@numba.njit(cache=True, nogil=True)
 def _run_steps(  # pragma: no cover
-    inp, offs, out, tbox, geo, par, klen, w, w_off, st, st_off, last, pos_off,
+    inp, offs, out, tbox, geo, par, klen, w, w_off, st, st_off, z, z_off, last, pos_off,
     ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off, seen, fc, kout, hring, spike_counts,
 ):  # fmt: skip
     n_layers = geo.shape[0]
+    mask = np.zeros(ring_cap[1:].max(), dtype=np.bool_)
     n_out = fc.shape[0]
     lo = kout.shape[0]
     for s in range(offs.shape[0] - 1):
@@ -268,78 +318,32 @@ def _run_steps(  # pragma: no cover
         ring_cnt[cnt_off[0] + t % ring_len[0]] = m
         for li in range(n_layers):
             g = geo[li]
-            c, p, tail_a, tail_d, a, q, tail_r, theta, one, zero = (
-                par[li, 0], par[li, 1], par[li, 2], par[li, 3], par[li, 4],
-                par[li, 5], par[li, 6], par[li, 7], par[li, 8], par[li, 9],
-            )  # fmt: skip
+            cout, n_pos = g[3], g[4] * g[5]
             big_l, big_m = klen[li, 0], klen[li, 1]
-            s0, p0, w0 = st_off[li], pos_off[li], w_off[li]
-            cap_in, cap_out = ring_cap[li], ring_cap[li + 1]
-            # input spikes now (weight 1 into A) and L steps ago (the psp's truncated tail)
-            slot = t % ring_len[li]
-            base = ring_off[li] + slot * cap_in
-            cnt = ring_cnt[cnt_off[li] + slot]
-            _scatter(ring[base : base + cnt], cnt, g, w, w0, st, s0, last, p0, t, one, zero, False)
-            if t >= big_l:
-                slot = (t - big_l) % ring_len[li]
-                base = ring_off[li] + slot * cap_in
-                cnt = ring_cnt[cnt_off[li] + slot]
-                _scatter(
-                    ring[base : base + cnt],
-                    cnt,
-                    g,
-                    w,
-                    w0,
-                    st,
-                    s0,
-                    last,
-                    p0,
-                    t,
-                    tail_a,
-                    tail_d,
-                    True,
-                )
+            s0, p0 = st_off[li], pos_off[li]
+            n_neurons = n_pos * cout
+            # synaptic input of this step into ring slot t, read back L steps later
+            z_new = z_off[li] + (t % (big_l + 1)) * n_neurons
+            z_old = z_off[li] + ((t + 1) % (big_l + 1)) * n_neurons
+            base = ring_off[li] + (t % ring_len[li]) * ring_cap[li]
+            cnt = ring_cnt[cnt_off[li] + t % ring_len[li]]
+            _scatter(ring[base : base + cnt], g, w, w_off[li], z, z_new, last, p0, t)
             # refractory feedback of this layer's own spikes, one step and M steps ago
-            cout = g[3]
             for lag in (1, big_m):
                 if t >= lag:
-                    amp = a if lag == 1 else tail_r
+                    amp = par[li, 4] if lag == 1 else par[li, 6]
                     slot = (t - lag) % ring_len[li + 1]
-                    base = ring_off[li + 1] + slot * cap_out
+                    base = ring_off[li + 1] + slot * ring_cap[li + 1]
                     for j in range(ring_cnt[cnt_off[li + 1] + slot]):
                         n = ring[base + j]
                         st[2, s0 + n] += amp
                         last[p0 + n // cout] = t
-            # fused pass over recently touched pixels: threshold, then advance the recursions
-            horizon = max(big_l, big_m) + 1
             slot = t % ring_len[li + 1]
-            obase = ring_off[li + 1] + slot * cap_out
-            n_spk = 0
-            n_pos = pos_off[li + 1] - p0
-            for pos in range(n_pos):
-                age = t - last[p0 + pos]
-                if age > horizon:
-                    continue
-                n0 = s0 + pos * cout
-                ra, rd, rr = st[0, n0 : n0 + cout], st[1, n0 : n0 + cout], st[2, n0 : n0 + cout]
-                if age == horizon:
-                    ra[:] = 0.0
-                    rd[:] = 0.0
-                    rr[:] = 0.0
-                    continue
-                # vectorised: the largest potential; the spike list only when someone fires
-                top = c * rd[0] + rr[0]
-                for co in range(1, cout):
-                    top = max(top, c * rd[co] + rr[co])
-                if top >= theta:
-                    for co in range(cout):
-                        if c * rd[co] + rr[co] >= theta:
-                            ring[obase + n_spk] = n0 - s0 + co
-                            n_spk += 1
-                for co in range(cout):
-                    rd[co] = p * (rd[co] + ra[co])
-                    ra[co] = p * ra[co]
-                    rr[co] = q * rr[co]
+            obase = ring_off[li + 1] + slot * ring_cap[li + 1]
+            n_spk = _layer_pass(
+                st, s0, z, z_new, z_old, last, p0, n_pos, cout, t, max(big_l, big_m) + 1,
+                par[li], mask, ring[obase : obase + ring_cap[li + 1]],
+            )  # fmt: skip
             ring_cnt[cnt_off[li + 1] + slot] = n_spk
             spike_counts[li] += n_spk
         # -- readout: global average of the last layer's spikes -> dense -> psp (exact FIR)
