@@ -130,6 +130,9 @@ def test_bad_arguments_are_refused(dataset, checkpoint, tmp_path):
         run_evaluation(dataset, tmp_path / "missing.pt", "test", tmp_path)
     with pytest.raises(InputError, match="split"):
         run_evaluation(dataset, checkpoint, "nope", tmp_path)
+    with pytest.raises(InputError, match="only 3 windows"):
+        run_evaluation(dataset, checkpoint, "test", tmp_path, examples=[3])
+    assert not (tmp_path / "metrics.json").exists()  # refused before any work
 
 
 def test_report_compares_runs_beside_the_paper(evaluated, tmp_path):

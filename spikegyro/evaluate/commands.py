@@ -105,17 +105,34 @@ def _check_resolution(spec: InputSpec, windows: list[Window], checkpoint: Path) 
         )
 
 
-def choose_examples(windows: list[Window], gt: np.ndarray, count: int) -> list[int]:
+def choose_examples(windows: list[Window], count: int) -> list[int]:
     """Windows for the qualitative figures: among windows holding events, those whose mean true
     speed over the evaluated steps is closest to evenly spaced quantiles (slow ... fast)."""
     candidates = [i for i, w in enumerate(windows) if len(w.events)]
     if not candidates or count <= 0:
         return []
-    speed = np.linalg.norm(gt[candidates, metrics.EVAL_START_STEP :], axis=-1).mean(axis=1)
+    speed = [
+        np.linalg.norm(windows[i].omega[metrics.EVAL_START_STEP :], axis=-1).mean()
+        for i in candidates
+    ]
     order = np.argsort(speed, kind="stable")
     quantiles = np.linspace(0.1, 0.9, count) if count > 1 else np.array([0.5])
     picks = order[np.round(quantiles * (len(order) - 1)).astype(int)]
     return sorted({candidates[int(i)] for i in picks})
+
+
+def _subject(
+    checkpoint: str | os.PathLike | None,
+) -> tuple[tuple[torch.nn.Module, dict[str, Any]] | None, InputSpec, str, dict[str, Any]]:
+    """What is evaluated: (model and payload or None for CMax, input spec, name, description)."""
+    if checkpoint is None:
+        info = {"source": "contrast maximization (spikegyro.baselines.cmax)"}
+        return None, InputSpec(), "CMax", info
+    net, payload, name = load_model(checkpoint)
+    spec = spec_of(payload)
+    info = {"source": str(checkpoint), "checkpoint_model": payload.get("model")}
+    info["input"] = spec.as_dict()
+    return (net, payload), spec, name, info
 
 
 def _model_results(pred: np.ndarray, gt: np.ndarray) -> dict[str, Any]:
@@ -139,6 +156,22 @@ def _mean_omega(data_dir: Path, warnings: list[str]) -> tuple[np.ndarray, str]:
     except InputError as exc:
         warnings.append(f"mean predictor uses omega = 0 (close to the paper's mean): {exc}")
         return np.zeros(3), "zero (no training split)"
+
+
+def _write_predictions(
+    path: Path, windows: list[Window], pred: np.ndarray, gt: np.ndarray, mean_omega: np.ndarray
+) -> None:
+    """predictions.npz: everything needed to re-score without rerunning the model."""
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez_compressed(
+            f,
+            pred=pred,
+            gt=gt,
+            mean_omega=mean_omega,
+            sources=np.array([w.source for w in windows]),
+            t_start_us=np.array([w.t_start_us for w in windows], dtype=np.int64),
+            num_events=np.array([len(w.events) for w in windows], dtype=np.int64),
+        )
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
@@ -252,15 +285,7 @@ def run_evaluation(
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
     warnings: list[str] = []
 
-    if checkpoint is not None:
-        net, payload, default_name = load_model(checkpoint)
-        spec = spec_of(payload)
-        model_spec: tuple[torch.nn.Module, dict[str, Any]] | None = (net, payload)
-        model_info = {"source": str(checkpoint), "checkpoint_model": payload.get("model")}
-        model_info["input"] = spec.as_dict()
-    else:
-        spec, model_spec, default_name = InputSpec(), None, "CMax"
-        model_info = {"source": "contrast maximization (spikegyro.baselines.cmax)"}
+    model_spec, spec, default_name, model_info = _subject(checkpoint)
     name = name or default_name
 
     windows = fixed_windows(data_dir, split, spec.window_ms)
@@ -270,6 +295,10 @@ def run_evaluation(
         raise InputError(f"{data_dir / split}: no windows of {spec.window_ms} ms to evaluate.")
     if checkpoint is not None:
         _check_resolution(spec, windows, Path(checkpoint))
+    picks = examples if examples is not None else choose_examples(windows, num_examples)
+    bad = [i for i in picks if not 0 <= i < len(windows)]
+    if bad:
+        raise InputError(f"--example {bad[0]}: there are only {len(windows)} windows (0-based).")
     num_events = np.array([len(w.events) for w in windows], dtype=np.int64)
     if (num_events == 0).any():
         warnings.append(
@@ -329,21 +358,8 @@ def run_evaluation(
     }
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out_dir / "predictions.npz") as tmp, open(tmp, "wb") as f:
-        np.savez_compressed(
-            f,
-            pred=pred,
-            gt=gt,
-            mean_omega=mean_omega,
-            sources=np.array([w.source for w in windows]),
-            t_start_us=np.array([w.t_start_us for w in windows], dtype=np.int64),
-            num_events=num_events,
-        )
+    _write_predictions(out_dir / "predictions.npz", windows, pred, gt, mean_omega)
     _write_json(out_dir / "metrics.json", result)
-    picks = examples if examples is not None else choose_examples(windows, gt, num_examples)
-    bad = [i for i in picks if not 0 <= i < len(windows)]
-    if bad:
-        raise InputError(f"--example {bad[0]}: there are only {len(windows)} windows (0-based).")
     example_refs = _example_figures(out_dir, windows, pred, picks, name)
     _evaluation_report(out_dir, result, example_refs)
     _print_summary(console, result, out_dir)
