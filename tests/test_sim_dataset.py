@@ -134,8 +134,12 @@ def test_cli_simulate_export_show(tmp_path):
     runner = CliRunner()
     out = tmp_path / "ds"
     args = ["simulate", "--out", str(out), "--sequences", "1", "--duration-ms", "100"]
-    res = runner.invoke(app, [*args, "--width", "32", "--height", "24"])
+    res = runner.invoke(app, [*args, "--width", "32", "--height", "24", "--compression", "gzip"])
     assert res.exit_code == 0, res.output
+    with h5py.File(sequence_path(out, "train", 0)) as f:
+        assert f["ev_ts"].compression == "gzip" and f.attrs["width"] == 32
+    res = runner.invoke(app, [*args, "--compression", "zip"])
+    assert isinstance(res.exception, InputError) and "compression" in str(res.exception)
     res = runner.invoke(app, ["export-official", str(out), str(tmp_path / "off")])
     assert res.exit_code == 0, res.output
     assert (tmp_path / "off" / "train" / "0000000.h5").exists()
