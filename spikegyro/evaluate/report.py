@@ -31,8 +31,10 @@ frames."""
 
 
 def paper_result(name: str) -> dict[str, float] | None:
-    """The paper's numbers for model ``name`` (the official SNN-6 checkpoint maps to SNN-6)."""
-    return PAPER_RESULTS.get(name) or PAPER_RESULTS.get(name.removesuffix(" (official)"))
+    """The paper's numbers for model ``name``; the official SNN-6 checkpoint maps to SNN-6 and a
+    run tag (``SNN-6 [run2]``) is ignored."""
+    base = name.split(" [", 1)[0]
+    return PAPER_RESULTS.get(base) or PAPER_RESULTS.get(base.removesuffix(" (official)"))
 
 
 @dataclass(frozen=True)
@@ -210,20 +212,27 @@ def axis_table(models: Mapping[str, Mapping[str, Any]]) -> Table:
 
 
 def bin_table(per_bin_by_model: Mapping[str, Sequence[Mapping[str, Any]]]) -> Table:
-    """Per speed bin: pair count, then each model's median relative error and mean error."""
+    """One row per model, one column per speed bin: median relative error / mean Euclidean
+    error (deg/s); then the evaluated steps per bin (one row per distinct data set)."""
     names = list(per_bin_by_model)
-    first = per_bin_by_model[names[0]]
-    header = ["true speed [deg/s]", "steps"]
-    for name in names:
-        header += [f"{name}: median rel. error", f"{name}: mean Eucl. error [deg/s]"]
+    labels = [b["label"] for b in per_bin_by_model[names[0]]]
     rows = []
-    for i, b in enumerate(first):
-        row = [b["label"], fmt(b["n_pairs"])]
-        for name in names:
-            entry = per_bin_by_model[name][i]
-            row += [
-                fmt(entry.get("median_relative_error")),
-                fmt(entry.get("mean_euclidean_error_deg_s"), 1),
-            ]
-        rows.append(row)
-    return Table("Errors per speed bin (bins of the true speed at each step)", header, rows)
+    for name in names:
+        cells = [
+            f"{fmt(b.get('median_relative_error'))} / {fmt(b.get('mean_euclidean_error_deg_s'), 1)}"
+            if b["n_pairs"]
+            else "-"
+            for b in per_bin_by_model[name]
+        ]
+        rows.append([name, *cells])
+    counts: dict[tuple[int, ...], list[str]] = {}
+    for name in names:
+        counts.setdefault(tuple(b["n_pairs"] for b in per_bin_by_model[name]), []).append(name)
+    for key, owners in counts.items():
+        label = "steps" if len(counts) == 1 else f"steps ({', '.join(owners)})"
+        rows.append([label, *(fmt(n) for n in key)])
+    return Table(
+        "Per true-speed bin [deg/s]: median relative error / mean Euclidean error [deg/s]",
+        ["model", *labels],
+        rows,
+    )
