@@ -157,3 +157,28 @@ def test_mirrored_and_reversed_trajectories_trace_mirrored_and_reversed_paths(ax
         traj.mirrored(axis).rotation_at(t), m @ traj.rotation_at(t) @ m, atol=1e-9
     )
     np.testing.assert_allclose(traj.reversed().rotation_at(t), traj.rotation_at(0.2 - t), atol=1e-9)
+
+
+@pytest.mark.parametrize("axis", [0, 1])
+def test_mirrored_world_gives_the_flipped_event_stream(axis):
+    # The training engineer's flip augmentation relies on this: a horizontally (vertically)
+    # mirrored scene under the mirrored motion, seen by a centred camera, emits the flipped events.
+    from spikegyro.sim import mirror_panorama
+    from spikegyro.sim.procedural import procedural_panorama
+
+    cam = Camera(48, 36, 40.0, 40.0, 23.5, 17.5)
+    pano = procedural_panorama(np.random.default_rng(0), 512)
+    traj = random_trajectory(np.random.default_rng(1), 0.1)
+    ev = simulate(pano, traj, cam, EXACT).events
+    fl = simulate(mirror_panorama(pano, axis), traj.mirrored(axis), cam, EXACT).events
+    x, y = ev.x.astype(int), ev.y.astype(int)
+    fx, fy = fl.x.astype(int), fl.y.astype(int)
+    if axis == 0:
+        fx = cam.width - 1 - fx
+    else:
+        fy = cam.height - 1 - fy
+    a = np.lexsort((ev.t, ev.p, y, x))
+    b = np.lexsort((fl.t, fl.p, fy, fx))
+    assert len(ev) == len(fl) > 1000
+    np.testing.assert_array_equal(np.stack([x, y, ev.p])[:, a], np.stack([fx, fy, fl.p])[:, b])
+    assert np.abs(ev.t[a] - fl.t[b]).max() <= 2  # µs: rounding of float coordinates only
