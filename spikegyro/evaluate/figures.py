@@ -41,10 +41,10 @@ BOX_CLIP = 2.0
 """Largest |relative error| shown in the box plots: slow components make whiskers huge."""
 
 
-def _mark_empty(ax: Any, per_bin: Sequence[Mapping[str, Any]]) -> None:
-    """Write "no data" in the middle of each empty bin's slot."""
-    for i, b in enumerate(per_bin):
-        if b["n_pairs"] == 0:
+def _mark_empty(ax: Any, per_bin_lists: Sequence[Sequence[Mapping[str, Any]]]) -> None:
+    """Write "no data" in the middle of each bin slot that is empty in every list."""
+    for i, bins in enumerate(zip(*per_bin_lists, strict=True)):
+        if all(b["n_pairs"] == 0 for b in bins):
             ax.text(i, 0.8, "no data", transform=ax.get_xaxis_transform(), ha="center",
                     va="center", fontsize=9, color="#555555")  # fmt: skip
 
@@ -95,9 +95,14 @@ def median_relative_error_per_bin(
             edgecolor="black",
             linewidth=0.5,
         )
-    _mark_empty(ax, first)
-    ax.set_xticks(x, [f"{lab}\nn={b['n_pairs']:,}" for lab, b in zip(labels, first, strict=True)])
-    ax.set_xlabel("true angular speed ‖ω̂‖ [deg/s]  (n = evaluated 1 ms steps)")
+    _mark_empty(ax, list(per_bin_by_model.values()))
+    counts = {tuple(b["n_pairs"] for b in per_bin) for per_bin in per_bin_by_model.values()}
+    if len(counts) == 1:
+        ax.set_xticks(x, [f"{lab}\nn={n:,}" for lab, n in zip(labels, counts.pop(), strict=True)])
+        ax.set_xlabel("true angular speed ‖ω̂‖ [deg/s]  (n = evaluated 1 ms steps)")
+    else:
+        ax.set_xticks(x, labels)
+        ax.set_xlabel("true angular speed ‖ω̂‖ [deg/s]  (models scored on different data)")
     ax.set_ylabel("median relative error ‖ω − ω̂‖ / ‖ω̂‖ [-]")
     ax.set_ylim(0, max(top * 1.15, 0.1))
     ax.set_title(title)
@@ -135,7 +140,7 @@ def axis_relative_error_boxes(per_bin: Sequence[Mapping[str, Any]], model_name: 
                 boxprops={"facecolor": AXIS_COLORS[axis], "alpha": 0.8},
                 medianprops={"color": "black"},
             )
-    _mark_empty(ax, per_bin)
+    _mark_empty(ax, [per_bin])
     ax.axhline(0.0, color="black", linewidth=0.8, linestyle=":")
     ax.set_xticks(range(len(per_bin)), [f"{b['label']}\nn={b['n_pairs']:,}" for b in per_bin])
     ax.set_xlim(-0.6, len(per_bin) - 0.4)

@@ -1,0 +1,45 @@
+"""Figures: one fixed color per model across figures, empty bins drawn without failing."""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.colors import to_hex
+
+from spikegyro.evaluate import bins, figures
+
+
+def _per_bin(scale: float) -> list[dict]:
+    # Windows at 50, 150 and 250 deg/s: bins from 300 deg/s up stay empty.
+    directions = np.array([[1.0, 0, 0], [0.6, 0.8, 0], [0, 0.6, -0.8]])
+    gt = np.radians(directions * np.array([[50], [150], [250]]))[:, None].repeat(60, axis=1)
+    return bins.per_bin_metrics(gt * (1 + scale) + np.radians(3), gt)
+
+
+def _legend_colors(fig) -> dict[str, str]:
+    legend = fig.axes[0].get_legend()
+    handles = legend.legend_handles
+    return {
+        t.get_text(): to_hex(h.get_facecolor(), keep_alpha=False)
+        for t, h in zip(legend.get_texts(), handles, strict=True)
+    }
+
+
+def test_each_model_keeps_its_color_whatever_the_order():
+    runs = {"Mean": _per_bin(1.0), "SNN-6": _per_bin(0.2), "my net": _per_bin(0.1)}
+    a = _legend_colors(figures.median_relative_error_per_bin(runs))
+    b = _legend_colors(figures.median_relative_error_per_bin(dict(reversed(runs.items()))))
+    assert a == b
+    assert a["SNN-6"] == figures.MODEL_COLORS["SNN-6"].lower()
+    assert a["Mean"] == figures.MODEL_COLORS["Mean"].lower()
+    assert len(set(a.values())) == 3
+
+
+def test_box_figure_uses_axis_colors_and_survives_empty_bins():
+    fig = figures.axis_relative_error_boxes(_per_bin(0.2), "SNN-6")
+    colors = _legend_colors(fig)
+    assert colors == {
+        f"{axis} ({figures.AXIS_SYMBOLS[axis]})": figures.AXIS_COLORS[axis].lower()
+        for axis in ("tilt", "pan", "roll")
+    }
+    texts = [t.get_text() for t in fig.axes[0].texts]
+    assert texts.count("no data") == 3  # bins from 300 deg/s up
