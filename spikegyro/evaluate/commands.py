@@ -72,7 +72,7 @@ def display_name(payload: dict[str, Any]) -> str:
 def _is_official(path: Path) -> bool:
     """Whether ``path`` holds the official repository's weights rather than our format."""
     try:
-        raw = torch.load(path, map_location="cpu", weights_only=False)
+        raw = torch.load(path, map_location="cpu", weights_only=True)
     except Exception:  # read_checkpoint will explain what is wrong with the file
         return False
     if not isinstance(raw, dict) or raw.get("format") == CHECKPOINT_FORMAT:
