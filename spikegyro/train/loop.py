@@ -303,6 +303,7 @@ def resume_config(run_dir: Path, overrides: dict[str, Any] | None = None) -> Tra
     data = load_config(path.read_text()).as_dict()
     data.update({k: v for k, v in (overrides or {}).items() if v is not None})
     data["sensor"] = tuple(data["sensor"])
+    data["out"] = str(run_dir)  # the folder may have been moved since
     return TrainConfig(**data)
 
 
