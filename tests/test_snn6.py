@@ -11,6 +11,16 @@ from spikegyro.models.registry import build_model, load_checkpoint, save_checkpo
 from spikegyro.models.snn6 import SNN6, SNN6_LAYERS
 
 
+@pytest.fixture(autouse=True)
+def _one_thread():
+    # Small tensors: with 2 OpenMP threads on a busy shared machine every op waits for a
+    # descheduled worker (measured 30x slower); one thread keeps these tests fast and stable.
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def _spikes(shape, density, seed=0):
     gen = torch.Generator().manual_seed(seed)
     return (torch.rand(shape, generator=gen) < density).float()

@@ -12,6 +12,16 @@ from spikegyro.snn.layers import GASP, SRMConv, SRMDense, SRMParams
 PARAMS = SRMParams(tau_s=2.0, theta=0.27, tau_r=1.0, scale_rho=0.2)
 
 
+@pytest.fixture(autouse=True)
+def _one_thread():
+    # Small tensors: with 2 OpenMP threads on a busy shared machine every op waits for a
+    # descheduled worker (measured 30x slower); one thread keeps these tests fast and stable.
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def test_srm_conv_equals_official_order_spike_of_conv_of_psp():
     # The official model computes spike(conv(psp(x))); the layer convolves first. Same spikes.
     gen = torch.Generator().manual_seed(3)

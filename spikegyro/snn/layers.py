@@ -6,12 +6,14 @@ whose *storage* is time-major (a permuted view): the next layer folds time into 
 filters along time without copying.
 
 A layer computes s_out = spike(conv(psp(s_in))) like the official model. Convolution (over
-space) and PSP (over time) are linear and commute, so we evaluate spike(psp(conv(s_in))): the
-convolution then sees 0/1 spikes, which it keeps for the backward pass as booleans.
+space) and PSP (over time) are linear and commute, so a conv layer filters on the side with fewer
+neurons: its input for layers 1 and 5 of SNN-6, its output for layers 2-4 (where the convolution
+then sees 0/1 spikes, which it keeps for the backward pass as booleans).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -68,9 +70,8 @@ class _SRMLayer(nn.Module):
         with torch.no_grad():
             self.weight.uniform_(-bound, bound)
 
-    def _respond(self, current: torch.Tensor) -> torch.Tensor:
-        """PSP then spikes of a time-major (T, …) synaptic input."""
-        potential = psp(current, self.srm_kernel, dim=0)
+    def _fire(self, potential: torch.Tensor) -> torch.Tensor:
+        """Spikes of a time-major (T, …) potential (the potential itself when non-spiking)."""
         if not self.params.spiking:
             return potential
         p = self.params
@@ -103,10 +104,19 @@ class SRMConv(_SRMLayer):
         return size(height), size(width)
 
     def forward(self, spikes: torch.Tensor) -> torch.Tensor:
-        current = conv_over_time(
-            spikes.permute(4, 0, 1, 2, 3), self.weight, self.stride, self.padding
+        x = spikes.permute(4, 0, 1, 2, 3)  # (T, N, C, H, W): a view for time-major storage
+        channels, height, width = x.shape[2:]
+        out_height, out_width = self.output_size(height, width)
+        conv = functools.partial(
+            conv_over_time, weight=self.weight, stride=self.stride, padding=self.padding
         )
-        return self._respond(current).permute(1, 2, 3, 4, 0)
+        # PSP and convolution commute: filter on whichever side has fewer neurons. On the
+        # input of layer 1 this also skips the PSP's backward pass (the input needs no gradient).
+        if channels * height * width <= self.weight.shape[0] * out_height * out_width:
+            potential = conv(psp(x, self.srm_kernel, dim=0))
+        else:
+            potential = psp(conv(x), self.srm_kernel, dim=0)
+        return self._fire(potential).permute(1, 2, 3, 4, 0)
 
 
 class SRMDense(_SRMLayer):
@@ -120,7 +130,7 @@ class SRMDense(_SRMLayer):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         current = torch.nn.functional.linear(x.permute(2, 0, 1), self.weight)
-        return self._respond(current).permute(1, 2, 0)
+        return self._fire(psp(current, self.srm_kernel, dim=0)).permute(1, 2, 0)
 
 
 class GASP(nn.Module):
