@@ -257,7 +257,7 @@ def _advance(st, z, mask, n0, n1, zn0, zo0, par):  # pragma: no cover
         d = rd[i] + tail_d * zo[i]
         spike = c * d + rr[i] >= theta
         mk[i] = spike
-        fired += spike
+        fired += mk[i]
         rd[i] = p * (d + a)
         ra[i] = p * a
         rr[i] = q * rr[i]
@@ -286,11 +286,14 @@ def _layer_pass(st, s0, z, z_new, z_old, last, p0, n_pos, cout, t, horizon, par,
             end += 1
         n0, n1 = s0 + pos * cout, s0 + end * cout
         fired = _advance(st, z, mask, n0, n1, z_new + pos * cout, z_old + pos * cout, par)
-        if fired:
-            for i in range(n1 - n0):
-                if mask[i]:
-                    out[n_spk] = n0 - s0 + i
-                    n_spk += 1
+        if fired:  # spikes are sparse: test eight flags at a time
+            words = mask.view(np.uint64)
+            for k in range((n1 - n0 + 7) // 8):
+                if words[k]:
+                    for i in range(8 * k, min(8 * k + 8, n1 - n0)):
+                        if mask[i]:
+                            out[n_spk] = n0 - s0 + i
+                            n_spk += 1
         pos = end
     return n_spk
 
@@ -301,7 +304,7 @@ def _run_steps(  # pragma: no cover
     ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off, seen, fc, kout, hring, spike_counts,
 ):  # fmt: skip
     n_layers = geo.shape[0]
-    mask = np.zeros(ring_cap[1:].max(), dtype=np.bool_)
+    mask = np.zeros(8 * (ring_cap[1:].max() // 8 + 1), dtype=np.uint8)
     n_out = fc.shape[0]
     lo = kout.shape[0]
     for s in range(offs.shape[0] - 1):

@@ -1,0 +1,57 @@
+"""``spikegyro predict`` end to end: Event Camera Dataset folder, calibration, gyro, errors."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import torch
+from stream_helpers import random_events
+
+from spikegyro.events.core import GyroTrace, Recording
+from spikegyro.events.io import write_gyro_txt, write_recording
+from spikegyro.models.registry import save_checkpoint
+from spikegyro.models.snn6 import SNN6
+from spikegyro.stream.writer import read_predictions
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "spikegyro", "predict", *map(str, args)],
+        capture_output=True,
+        text=True,
+    )
+
+
+def test_predict_ecd_folder_with_calibration_and_gyro(tmp_path):
+    torch.manual_seed(0)
+    spec = {"representation": "spikes", "sensor": [80, 64], "scale": 1.0, "output": "per_step"}
+    ckpt = save_checkpoint(tmp_path / "snn6.pt", SNN6(), name="snn6", model_kwargs={},
+                           input_spec=spec)  # fmt: skip
+    # a 96x72 sensor with its own (distorted) optics, recorded like the Event Camera Dataset
+    events = random_events(96, 72, 120, rate=0.01, seed=3, t0_us=2_000_000)
+    t = np.arange(1_990_000, 2_130_000, 1000)
+    gyro = GyroTrace.from_arrays(t, np.column_stack([0 * t + 0.1, 0 * t - 0.2, 0 * t + 0.3]))
+    folder = write_recording(tmp_path / "ecd", Recording(events=events))
+    write_gyro_txt(tmp_path / "gyro.txt", gyro)
+    (folder / "calib.txt").write_text("210 209 47.5 35.5 -0.3 0.1 0.0002 -0.0005 0.0\n")
+    out = tmp_path / "pred.csv"
+    proc = _run(folder, "--checkpoint", ckpt, "--calib", folder / "calib.txt", "--width", 96,
+                "--height", 72, "--gyro", tmp_path / "gyro.txt", "--out", out)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    pred = read_predictions(out)
+    assert len(pred["t_us"]) == 120
+    assert pred["t_us"][0] == 2_001_000 and np.all(np.diff(pred["t_us"]) == 1000)
+    np.testing.assert_allclose(pred["gyro_omega"], np.tile([0.1, -0.2, 0.3], (120, 1)), atol=1e-6)
+    assert "real time" in proc.stderr and "RMSE" in proc.stderr
+    assert out.with_suffix(".png").stat().st_size > 0
+
+
+def test_predict_user_errors_are_one_line(tmp_path):
+    events = write_recording(
+        tmp_path / "rec.h5", Recording(events=random_events(240, 180, 5, 0.001))
+    )
+    proc = _run(events, "--checkpoint", tmp_path / "missing.pt")
+    assert proc.returncode == 2
+    assert proc.stderr.strip().count("\n") == 0 and "missing.pt" in proc.stderr
