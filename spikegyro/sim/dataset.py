@@ -147,10 +147,9 @@ def simulate_sequence(config: SimConfig, index: int, seed: int, split: str = "tr
     trajectory = random_trajectory(rng, duration_s, config.trajectory)
     events_config = replace(config.events, contrast_on=float(c_on), contrast_off=float(c_off))
     rec = simulate(panorama, trajectory, config.camera, events_config, rng, duration_s)
-    windows = np.bincount(
-        np.minimum(rec.events.t // WINDOW_US, max(0, config.duration_ms // 100 - 1)),
-        minlength=config.duration_ms // 100,
-    )
+    n_windows = config.duration_ms // 100  # whole 100 ms windows only
+    t = rec.events.t
+    windows = np.bincount(t[t < n_windows * WINDOW_US] // WINDOW_US, minlength=n_windows)
     attrs = {
         **rec.attrs,
         "contrast_on": float(c_on),

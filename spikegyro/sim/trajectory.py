@@ -181,12 +181,12 @@ class TrajectoryConfig:
 
     The initial ω is drawn independently on each axis from the same zero-mean Laplace
     distribution (scale ``omega_scale_deg``): per-axis ω are then uncorrelated and equally spread,
-    mean ‖ω‖ ≈ 225 deg/s, with a tail past 800 deg/s (≈0.3% of sequences). The angular
+    mean ‖ω‖ ≈ 225 deg/s, with a tail past 800 deg/s (≈0.2% of sequences). The angular
     acceleration is piecewise linear through knots every ``accel_knot_s`` seconds, each
     N(0, ``accel_std_deg``²) per axis, so ω drifts smoothly and slightly within a sequence.
     """
 
-    omega_scale_deg: float = 105.0
+    omega_scale_deg: float = 107.0
     accel_std_deg: float = 150.0
     accel_knot_s: float = 0.1
     knot_s: float = 5e-4
