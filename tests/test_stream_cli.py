@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 import torch
 from stream_helpers import random_events
 
@@ -48,10 +49,16 @@ def test_predict_ecd_folder_with_calibration_and_gyro(tmp_path):
     assert out.with_suffix(".png").stat().st_size > 0
 
 
-def test_predict_user_errors_are_one_line(tmp_path):
+def test_predict_user_errors_are_one_line(tmp_path, monkeypatch, capsys):
+    from spikegyro import cli
+
     events = write_recording(
         tmp_path / "rec.h5", Recording(events=random_events(240, 180, 5, 0.001))
     )
-    proc = _run(events, "--checkpoint", tmp_path / "missing.pt")
-    assert proc.returncode == 2
-    assert proc.stderr.strip().count("\n") == 0 and "missing.pt" in proc.stderr
+    monkeypatch.setattr(sys, "argv", ["spikegyro", "predict", str(events), "--checkpoint",
+                                      str(tmp_path / "missing.pt")])  # fmt: skip
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main()
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.strip().count("\n") == 0 and "missing.pt" in err
