@@ -22,6 +22,7 @@ from spikegyro.events.io import read_recording
 from spikegyro.events.plot import plot_events_and_omega
 from spikegyro.sim.camera import Camera
 from spikegyro.sim.dataset import SimConfig, export_official, generate_dataset
+from spikegyro.sim.esim import EventSimConfig
 
 
 def _progress() -> Progress:
@@ -75,6 +76,11 @@ def simulate_dataset(
     ),
     contrast_mean: float = typer.Option(0.45, help="Mean contrast threshold (log units)."),
     contrast_std: float = typer.Option(0.05, help="Per-sequence threshold spread."),
+    mismatch_std: float = typer.Option(0.03, min=0.0, help="Per-pixel threshold std."),
+    noise_std: float = typer.Option(0.01, min=0.0, help="Per-crossing threshold std."),
+    refractory_us: int = typer.Option(0, min=0, help="Refractory period, us (0: off)."),
+    shot_noise_hz: float = typer.Option(0.0, min=0.0, help="Shot-noise events per pixel per s."),
+    leak_hz: float = typer.Option(0.0, min=0.0, help="Leak (ON) events per pixel per s."),
     width: int = typer.Option(None, help="Sensor width, px (default 240)."),
     height: int = typer.Option(None, help="Sensor height, px (default 180)."),
     fx: float = typer.Option(None, help="Focal length x, px (default 200, scaled with width)."),
@@ -92,6 +98,13 @@ def simulate_dataset(
         camera=_camera(width, height, fx, fy, cx, cy),
         contrast_mean=contrast_mean,
         contrast_std=contrast_std,
+        events=EventSimConfig(
+            mismatch_std=mismatch_std,
+            noise_std=noise_std,
+            refractory_us=refractory_us,
+            shot_noise_hz=shot_noise_hz,
+            leak_hz=leak_hz,
+        ),
         panoramas=None if panoramas is None else str(panoramas.resolve()),
         procedural_fraction=procedural_fraction,
         detail_strength=detail,
