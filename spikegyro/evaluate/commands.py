@@ -315,9 +315,16 @@ def run_evaluation(
     model_res = {"name": name, **model_info, **_model_results(pred, gt)}
     model_res["nonfinite_predictions"] = nonfinite
     if model_spec is not None and hasattr(model_spec[0], "forward_with_spikes"):
-        model_res["spikes"] = spike_statistics(
-            model_spec[0], spec, [w for w in windows if len(w.events)][:spike_windows], device
-        )
+        busy = [w for w in windows if len(w.events)][:spike_windows]
+        with Progress(console=console, transient=True) as bar:
+            task = bar.add_task("spike statistics", total=len(busy))
+            model_res["spikes"] = spike_statistics(
+                model_spec[0],
+                spec,
+                busy,
+                device,
+                progress=lambda done: bar.update(task, completed=done),
+            )
     mean_res = {
         "name": "Mean",
         "source": mean_source,

@@ -140,12 +140,14 @@ def spike_statistics(
     windows: list[Window],
     device: str | torch.device = "cpu",
     batch_size: int = 4,
+    progress: Any = None,
 ) -> dict[str, Any]:
     """:func:`layer_statistics` of an SNN over ``windows`` (summed over batches, all T steps).
 
     The model must provide ``forward_with_spikes(x) -> (out, [spikes per conv layer])`` and
     ``convs``, its spiking convolutions (``weight`` (C_out, C_in, k, k), ``stride``, no padding),
-    as :class:`spikegyro.models.snn6.SNN6` does.
+    as :class:`spikegyro.models.snn6.SNN6` does. ``progress(done_windows)`` is called after each
+    batch when given.
     """
     if not windows:
         return {"windows": 0, "note": "no window with events to measure spikes on"}
@@ -158,6 +160,8 @@ def spike_statistics(
         _, spikes = model.forward_with_spikes(x)
         stats = layer_statistics(x, spikes, geometries)
         totals = stats if totals is None else _merge(totals, stats)
+        if progress is not None:
+            progress(min(i + batch_size, len(windows)))
     assert totals is not None
     return {"windows": len(windows), **totals}
 
