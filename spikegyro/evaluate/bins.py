@@ -4,9 +4,9 @@ Each evaluated (window, step) pair falls in the bin ``[lo, hi)`` holding its tru
 ||omega_hat|| in deg/s. The edges are fixed, not data-driven, so runs on different data or models
 stay comparable: :data:`SPEED_BIN_EDGES_DEG_S` = 0, 100, 200, 300, 400, 500, inf deg/s; the last
 bin is open, so no pair is ever dropped. For the simulator's default rotations (per-axis rates
-Laplace-distributed with scale 105 deg/s, mean speed about 220 deg/s) the
-bins hold about 16, 35, 26, 13, 6 and 4 % of the pairs (Monte Carlo, 10^6 draws); for Gaussian
-per-axis rates of the same mean speed, 9, 36, 36, 15, 3 and 0.4 %.
+Laplace-distributed with scale 107 deg/s, mean speed about 225 deg/s) the bins hold about 16, 35,
+26, 13, 6 and 4 % of the pairs (Monte Carlo, 10^6 draws); for Gaussian per-axis rates of mean
+speed 220 deg/s, 9, 36, 36, 15, 3 and 0.4 %.
 """
 
 from __future__ import annotations
