@@ -38,11 +38,14 @@ def _progress() -> Progress:
 
 
 def _camera(width, height, fx, fy, cx, cy) -> Camera:
-    base = (
-        Camera()
-        if width is None and height is None
-        else Camera.scaled(width or Camera.width, height or Camera.height)
-    )
+    """The default camera resized to the given sensor (aspect kept if one side is missing)."""
+    ref = Camera()
+    if width is None and height is None:
+        base = ref
+    else:
+        width = width or round(height * ref.width / ref.height)
+        height = height or round(width * ref.height / ref.width)
+        base = Camera.scaled(width, height)
     return Camera(
         base.width,
         base.height,
