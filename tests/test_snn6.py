@@ -1,5 +1,7 @@
 """SNN-6: shapes, input checks, an independent step-by-step reference, checkpoints."""
 
+import argparse
+
 import numpy as np
 import pytest
 import torch
@@ -167,3 +169,15 @@ def test_official_mismatches_are_named(tmp_path):
     assert "conv3.weight (32, 32, 3, 3, 1) (expected (64, 32, 3, 3, 1))" in message
     with pytest.raises(InputError, match="no such"):
         load_official(tmp_path / "none.pth")
+    path.write_bytes(b"not a checkpoint")
+    with pytest.raises(InputError, match="not a readable"):
+        load_official(path)
+
+
+def test_official_checkpoint_with_pickled_extras_loads(tmp_path):
+    model = SNN6()
+    path = tmp_path / "official.pth"
+    # Non-tensor extras (a config object) are refused by weights_only loading; still readable.
+    extras = argparse.Namespace(lr=1e-4)
+    torch.save({"model_state_dict": _official_state(model), "config": extras}, path)
+    torch.testing.assert_close(load_official(path).conv2.weight, model.conv2.weight)

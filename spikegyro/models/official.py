@@ -42,8 +42,12 @@ def _read_state(path: Path) -> dict[str, torch.Tensor]:
         raise InputError(f"{path}: no such checkpoint file.")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for corrupt or foreign files
-        raise InputError(f"{path}: not a readable PyTorch checkpoint ({exc}).") from None
+    except Exception:
+        # Training checkpoints may also pickle non-tensor extras (optimizer state, configs).
+        try:
+            payload = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception as exc:  # torch raises many types for corrupt or foreign files
+            raise InputError(f"{path}: not a readable PyTorch checkpoint ({exc}).") from None
     state = payload.get("model_state_dict", payload) if isinstance(payload, dict) else None
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise InputError(
