@@ -215,23 +215,18 @@ def _scatter(spikes, g, w, w0, z, zb, last, p0, t):  # pragma: no cover
     kh, kw = kk // 1000, kk % 1000
     for j in range(spikes.shape[0]):
         idx = spikes[j]
-        ci = idx % cin
         pix = idx // cin
-        iy, ix = pix // win, pix % win
-        for ky in range(kh):
-            oy = iy - ky
-            if oy < 0 or oy % stride != 0:
-                continue
-            oy //= stride
-            if oy >= hout:
-                continue
-            for kx in range(kw):
-                ox = ix - kx
-                if ox < 0 or ox % stride != 0:
-                    continue
-                ox //= stride
-                if ox >= wout:
-                    continue
+        ci = idx - pix * cin
+        iy = pix // win
+        ix = pix - iy * win
+        # the output pixels whose 3x3 window holds (iy, ix): o * stride + k = i, 0 <= k < kh
+        # (ranges computed once per spike: integer division is slow in the inner loops)
+        oy0, oy1 = max(0, (iy - kh + stride) // stride), min(hout - 1, iy // stride)
+        ox0, ox1 = max(0, (ix - kw + stride) // stride), min(wout - 1, ix // stride)
+        for oy in range(oy0, oy1 + 1):
+            ky = iy - oy * stride
+            for ox in range(ox0, ox1 + 1):
+                kx = ix - ox * stride
                 pos = oy * wout + ox
                 last[p0 + pos] = t
                 # contiguous views: the channel loop vectorises (no index wrap-around checks)
