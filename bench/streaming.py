@@ -25,7 +25,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from spikegyro.models.snn6 import SNN6
+from spikegyro.models.registry import load_checkpoint
+from spikegyro.models.snn6 import INIT_GAIN, SNN6
 from spikegyro.sim.dataset import SimConfig, simulate_sequence
 from spikegyro.stream.model import spec_from_model
 from spikegyro.stream.stateful import SNNSpec, StreamingSNN
@@ -95,12 +96,25 @@ def main() -> None:
     parser.add_argument("--dense-steps", type=int, default=200, help="steps of the dense run")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--dtype", choices=["float32", "float64"], default="float32")
+    parser.add_argument(
+        "--gain",
+        type=float,
+        default=INIT_GAIN,
+        help="random weights uniform in +-gain/sqrt(fan_in) (lower: sparser spiking)",
+    )
+    parser.add_argument("--checkpoint", help="a trained SNN-6 checkpoint instead of random weights")
     args = parser.parse_args()
     torch.set_num_threads(1)
     torch.manual_seed(args.seed)
     dtype = np.dtype(args.dtype).type
 
-    model = SNN6().eval()  # random weights, SNN6's init gain: every layer spikes
+    if args.checkpoint:
+        model, payload = load_checkpoint(args.checkpoint)
+        spec_in = payload["input"]
+        if tuple(spec_in.get("sensor", (240, 180))) != (240, 180) or spec_in.get("scale", 1) != 1:
+            raise SystemExit(f"{args.checkpoint}: the bench runs at 240x180, scale 1")
+    else:
+        model = SNN6(init_gain=args.gain).eval()  # random weights scaled so every layer spikes
     spec = spec_from_model(model, (2, 180, 240))
     engine = StreamingSNN(spec, dtype=dtype)
     engine.run(np.zeros(1, np.int64), np.array([0, 1, 1]))  # compile (or load the cache)
@@ -109,14 +123,15 @@ def main() -> None:
     sequences = simulated_sequences(args.sequences, args.duration_ms, args.seed)
     print(
         f"simulated {len(sequences)} test sequences of {args.duration_ms} ms at 240x180 "
-        f"in {time.perf_counter() - t_sim:.1f} s; one CPU thread, state dtype {args.dtype}"
+        f"in {time.perf_counter() - t_sim:.1f} s; one CPU thread, state dtype {args.dtype}, "
+        + (args.checkpoint or f"random SNN-6 with init gain {args.gain}")
     )
     header = (
         f"{'seq':>3} {'events':>8} {'input%':>6} {'spikes/step L1..L5 (% of neurons)':>36}"
         f" {'event-driven':>13} {'dense':>8} {'speed-up':>8} {'max |diff|':>10}"
     )
     print(header)
-    tot_ev, tot_dense, tot_steps, tot_dense_steps = 0.0, 0.0, 0, 0
+    totals = np.zeros(6)  # wall, cpu, steps for event-driven; the same for dense
     n_neurons = np.array([c * h * w for c, h, w in spec.layer_shapes()])
     for i, rec in enumerate(sequences):
         ev = rec.events
@@ -125,9 +140,9 @@ def main() -> None:
         index = (ev.y.astype(np.int64) * 240 + ev.x) * 2 + ev.p
         offsets = np.searchsorted(k, np.arange(steps + 1))
         engine.reset()
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         out = engine.run(index, offsets)
-        wall_ev = time.perf_counter() - start
+        wall_ev, cpu_ev = time.perf_counter() - start, time.process_time() - cpu
         rates = engine.spike_counts / steps / n_neurons * 100
 
         dense = DenseStepper(spec)
@@ -136,9 +151,9 @@ def main() -> None:
         keep = k < n_dense
         frames[k[keep], ev.p[keep], ev.y[keep], ev.x[keep]] = 1.0
         frames_t = torch.from_numpy(frames)
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         out_dense = torch.stack([dense.step(frames_t[s]) for s in range(n_dense)]).numpy()
-        wall_dense = time.perf_counter() - start
+        wall_dense, cpu_dense = time.perf_counter() - start, time.process_time() - cpu
         diff = np.abs(out_dense - out[:n_dense]).max()
 
         active = np.mean([np.unique(index[offsets[s] : offsets[s + 1]]).size for s in range(steps)])
@@ -149,17 +164,14 @@ def main() -> None:
             f"{i:>3} {len(ev):>8} {active / (2 * 240 * 180) * 100:>6.2f} {rate_text:>36} "
             f"{rtf_ev:>12.2f}x {rtf_dense:>7.3f}x {rtf_ev / rtf_dense:>7.1f}x {diff:>10.2e}"
         )
-        tot_ev += wall_ev
-        tot_dense += wall_dense
-        tot_steps += steps
-        tot_dense_steps += n_dense
-    rtf_ev = tot_steps / 1000 / tot_ev
-    rtf_dense = tot_dense_steps / 1000 / tot_dense
-    print(
-        f"all: event-driven {rtf_ev:.2f}x real time ({tot_ev / tot_steps * 1e6:.0f} us/step), "
-        f"naive dense {rtf_dense:.3f}x ({tot_dense / tot_dense_steps * 1e6:.0f} us/step), "
-        f"speed-up {rtf_ev / rtf_dense:.1f}x"
-    )
+        totals += (wall_ev, cpu_ev, steps, wall_dense, cpu_dense, n_dense)
+    w_ev, c_ev, n_ev, w_de, c_de, n_de = totals
+    for label, t_ev, t_de in (("wall time", w_ev, w_de), ("CPU time", c_ev, c_de)):
+        print(
+            f"all, {label}: event-driven {n_ev / 1000 / t_ev:.2f}x real time "
+            f"({t_ev / n_ev * 1e6:.0f} us/step), naive dense {n_de / 1000 / t_de:.3f}x "
+            f"({t_de / n_de * 1e6:.0f} us/step), speed-up {(t_de / n_de) / (t_ev / n_ev):.1f}x"
+        )
 
 
 if __name__ == "__main__":
