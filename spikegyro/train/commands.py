@@ -51,6 +51,10 @@ def train_command(
     num_bins: int = typer.Option(None, help="Voxel-grid bins (ANNs)."),
     target_ms: int = typer.Option(None, help="ANN prediction window, ms."),
     loss_start_step: int = typer.Option(None, help="First step (ms) counted by the loss."),
+    train_window_ms: int = typer.Option(None, help="Training window length, ms (0 = --window-ms)."),
+    train_loss_start_step: int = typer.Option(
+        None, help="First step of training windows counted by the loss."
+    ),
     batch_size: int = typer.Option(None, help="Windows per step, over all processes."),
     lr: float = typer.Option(None, help="Adam learning rate."),
     lr_schedule: str = typer.Option(None, help="constant or cosine."),
@@ -85,6 +89,8 @@ def train_command(
         "num_bins": num_bins,
         "target_ms": target_ms,
         "loss_start_step": loss_start_step,
+        "train_window_ms": train_window_ms,
+        "train_loss_start_step": train_loss_start_step,
         "batch_size": batch_size,
         "lr": lr,
         "lr_schedule": lr_schedule,

@@ -104,7 +104,7 @@ def online_simulator(config: TrainConfig, split: str = "train") -> functools.par
     from spikegyro.sim.camera import Camera  # the simulator is only needed in online mode
     from spikegyro.sim.dataset import SimConfig, simulate_sequence
 
-    base = SimConfig(duration_ms=config.window_ms).to_dict()
+    base = SimConfig(duration_ms=max(config.window_ms, config.train_window_ms)).to_dict()
     for key, value in (config.sim or {}).items():
         if key not in base:
             raise InputError(f"--sim: unknown simulator setting '{key}'; see SimConfig.")
@@ -120,10 +120,12 @@ def online_simulator(config: TrainConfig, split: str = "train") -> functools.par
 
 
 def training_samples(config: TrainConfig, spec: InputSpec) -> TrainingSamples:
+    """Random training windows of ``train_window_ms``, augmented, encoded as ``spec`` says."""
+    spec = replace(spec, window_ms=config.train_window_ms)
     if config.online:
-        source = OnlineSource(online_simulator(config), config.window_ms)
+        source = OnlineSource(online_simulator(config), config.train_window_ms)
     else:
-        source = FileSource.from_split(config.data, "train", config.window_ms)
+        source = FileSource.from_split(config.data, "train", config.train_window_ms)
     augment = AugmentConfig(config.hflip, config.vflip, config.time_reverse)
     return TrainingSamples(
         source, spec, seed=config.seed, augment=augment if augment.enabled else None
@@ -381,7 +383,7 @@ def _train(
             x, y = model_batch(inputs, targets, spec)
             x = x.to(ctx.device, non_blocking=True)
             y = y.to(ctx.device, non_blocking=True)
-            loss = angular_velocity_loss(net(x), y, config.loss_start_step)
+            loss = angular_velocity_loss(net(x), y, config.train_loss_start_step)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             if config.grad_clip > 0:

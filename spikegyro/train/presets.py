@@ -32,9 +32,14 @@ class TrainConfig:
         model_kwargs: extra constructor arguments of the model.
         sensor: (width, height) of the dataset's events, pixels.
         scale: factor on event coordinates before binning (0.5: 240x180 -> 120x90).
-        window_ms: window length, ms (training windows start at random whole milliseconds).
+        window_ms: window length, ms, of validation windows and of the checkpoint's input spec.
         num_bins: voxel-grid bins per ANN window; target_ms: ANN window, ms.
-        loss_start_step: first step (ms) counted by the loss and validation metrics.
+        loss_start_step: first step (ms) counted by the validation metrics (and the loss).
+        train_window_ms, train_loss_start_step: the same for training windows (0 = as above,
+            the start scaled with the window).
+            Training windows start at random whole milliseconds. The SNN is time-invariant, so
+            shorter training windows (e.g. 40 ms scored from step 20) see more windows per
+            second of compute and still apply to 100 ms windows.
         batch_size: windows per optimizer step, summed over all processes.
         lr: Adam learning rate; lr_schedule: "constant" or "cosine" (to lr_min_factor * lr);
         warmup_steps: linear warm-up from 0; grad_clip: max gradient norm (0 = off).
@@ -66,6 +71,8 @@ class TrainConfig:
     num_bins: int = 5
     target_ms: int = 20
     loss_start_step: int = 50
+    train_window_ms: int = 0
+    train_loss_start_step: int = 0
     batch_size: int = 16
     lr: float = 1e-4
     lr_schedule: str = "constant"
@@ -100,10 +107,17 @@ class TrainConfig:
             )
         if self.lr_schedule not in ("constant", "cosine"):
             raise InputError(f"--lr-schedule {self.lr_schedule}: use constant or cosine.")
-        if not 0 <= self.loss_start_step < self.window_ms:
-            raise InputError(
-                f"--loss-start-step {self.loss_start_step}: must lie in 0..{self.window_ms - 1}."
-            )
+        if not self.train_window_ms:
+            object.__setattr__(self, "train_window_ms", self.window_ms)
+        if not self.train_loss_start_step:
+            start = round(self.loss_start_step * self.train_window_ms / self.window_ms)
+            object.__setattr__(self, "train_loss_start_step", start)
+        for name, start, window in (
+            ("loss-start-step", self.loss_start_step, self.window_ms),
+            ("train-loss-start-step", self.train_loss_start_step, self.train_window_ms),
+        ):
+            if not 0 <= start < window:
+                raise InputError(f"--{name} {start}: must lie in 0..{window - 1}.")
         for name in ("batch_size", "iterations", "val_every", "log_every", "window_ms"):
             if getattr(self, name) <= 0:
                 raise InputError(f"--{name.replace('_', '-')}: must be positive.")
