@@ -213,14 +213,19 @@ def _scatter(spikes, g, w, w0, z, zb, last, p0, t):  # pragma: no cover
     """Add ``W[:, ci, ky, kx]`` to the synaptic input ``z`` of each output pixel a spike reaches."""
     cin, win, cout, hout, wout, stride, kk = g[0], g[2], g[3], g[4], g[5], g[6], g[7]
     kh, kw = kk // 1000, kk % 1000
-    for j in range(spikes.shape[0]):
-        idx = spikes[j]
-        pix = idx // cin
-        ci = idx - pix * cin
+    n_spikes = spikes.shape[0]
+    j = 0
+    while j < n_spikes:
+        # spikes of one input pixel (adjacent in the lists layers emit) share their targets
+        pix = spikes[j] // cin
+        first_unit = pix * cin
+        j_end = j + 1
+        while j_end < n_spikes and first_unit <= spikes[j_end] < first_unit + cin:
+            j_end += 1
         iy = pix // win
         ix = pix - iy * win
-        # the output pixels whose 3x3 window holds (iy, ix): o * stride + k = i, 0 <= k < kh
-        # (ranges computed once per spike: integer division is slow in the inner loops)
+        # the output pixels whose window holds (iy, ix): o * stride + k = i with 0 <= k < kh
+        # (ranges computed once per pixel: integer division is slow in the inner loops)
         oy0, oy1 = max(0, (iy - kh + stride) // stride), min(hout - 1, iy // stride)
         ox0, ox1 = max(0, (ix - kw + stride) // stride), min(wout - 1, ix // stride)
         for oy in range(oy0, oy1 + 1):
@@ -230,11 +235,14 @@ def _scatter(spikes, g, w, w0, z, zb, last, p0, t):  # pragma: no cover
                 pos = oy * wout + ox
                 last[p0 + pos] = t
                 # contiguous views: the channel loop vectorises (no index wrap-around checks)
-                wb = w0 + ((ky * kw + kx) * cin + ci) * cout
-                col = w[wb : wb + cout]
                 row = z[zb + pos * cout : zb + (pos + 1) * cout]
-                for co in range(cout):
-                    row[co] += col[co]
+                tap = w0 + (ky * kw + kx) * cin * cout
+                for jj in range(j, j_end):
+                    wb = tap + (spikes[jj] - first_unit) * cout
+                    col = w[wb : wb + cout]
+                    for co in range(cout):
+                        row[co] += col[co]
+        j = j_end
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
