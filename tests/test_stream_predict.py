@@ -147,3 +147,10 @@ def test_memory_stays_flat_for_long_files(tmp_path, engine):
     assert long_steps >= 8 * short_steps - 8
     # 8x the events and steps, the same working set (chunks of 2k events)
     assert long_peak < 1.3 * short_peak, (short_peak, long_peak)
+
+
+def test_a_span_without_events_is_an_input_error(tmp_path, engine, recording):
+    path = write_recording(tmp_path / "rec.h5", recording)
+    with pytest.raises(InputError, match="no events"):
+        predict_stream(path, engine, SPEC, tmp_path / "p.csv", start_s=5.0)
+    assert not (tmp_path / "p.csv").exists()

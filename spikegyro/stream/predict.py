@@ -356,6 +356,8 @@ def predict_stream(
             emit(writer, *predictor.push(mapper(chunk)))
             if on_progress is not None:
                 on_progress(predictor.steps * BIN_US / 1e6, time.perf_counter() - start)
+        if not result.events:
+            raise InputError(f"{events_path}: no events between --start and --end.")
         emit(writer, *predictor.finish(t_end if t_end is not None else last_t + 1))
     result.wall_s = time.perf_counter() - start
     result.steps = predictor.steps
