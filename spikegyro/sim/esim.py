@@ -67,7 +67,7 @@ def frame_times(
         camera.max_flow(trajectory.omega_at(grid)) / max_px_per_frame, min_frame_rate_hz
     )
     count = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(grid))])
-    n = int(np.ceil(count[-1]))
+    n = max(1, int(np.ceil(count[-1])))
     times = np.interp(np.arange(n + 1) * (count[-1] / n), count, grid)
     times[-1] = duration_s
     return times
