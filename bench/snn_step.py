@@ -5,14 +5,18 @@ One step = forward + backward of a window of T = 100 steps (1 ms each) of random
 build has the same convolutions (16-32-64-128-256, 3x3, strides 2-2-2-2-1, no padding, no bias),
 snn.Synaptic neurons (the nearest equivalent of an SRM neuron: a second-order synapse +
 membrane with decays exp(-1/τs), thresholds θ, subtractive reset) stepped in a Python loop over
-T, spike-count pooling and a non-spiking Synaptic readout with τs = 8.
+T, GASP (spatial mean of layer-5 spikes) and a non-spiking Synaptic readout with τs = 8.
 
-Each (implementation, resolution) runs in its own subprocess so that its peak resident memory
-(``ru_maxrss``) is its own; the table reports the median step time of ``--repeats`` steps after
-one warm-up, the peak RSS, and the peak growth over the RSS before the first step.
+Step times: both implementations in one process, steps interleaved (so both see the same
+background load), median of ``--repeats`` after one warm-up step each. Memory: one step of each
+(implementation, resolution) in its own subprocess, peak resident set (VmHWM, reset just before
+the step); "growth" is that peak minus the resident set before the step.
+The ratio column is time / spikegyro's time at the same resolution (the first implementation
+listed is the reference).
 
     .venv/bin/python bench/snn_step.py                   # 240x180 and 120x90, batch 1, 2 threads
     .venv/bin/python bench/snn_step.py --batch 16 --resolutions 240x180 --impls spikegyro
+    .venv/bin/python bench/snn_step.py --device cuda
 """
 
 from __future__ import annotations
@@ -20,11 +24,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import resource
 import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 
 import torch
 from torch import nn
@@ -33,13 +37,16 @@ STEPS = 100
 DENSITY = 0.01
 
 
-def _rss_mib() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+def _status_mib(field: str) -> float:
+    with open("/proc/self/status") as f:
+        line = next(line for line in f if line.startswith(field + ":"))
+    return int(line.split()[1]) / 1024.0  # kB
 
 
-def _current_rss_mib() -> float:
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * resource.getpagesize() / 2**20
+def _reset_peak_rss() -> None:
+    # Writing 5 to clear_refs resets the peak resident set (VmHWM) to the current one (Linux).
+    with open("/proc/self/clear_refs", "w") as f:
+        f.write("5")
 
 
 class SnnTorchSNN6(nn.Module):
@@ -93,35 +100,52 @@ def _build(impl: str) -> nn.Module:
     return SnnTorchSNN6()
 
 
-def measure(impl: str, width: int, height: int, batch: int, repeats: int, threads: int) -> dict:
-    """One configuration, in this process; returns seconds per step and memory in MiB."""
-    torch.set_num_threads(threads)
+def _make_step(impl: str, resolution: str, batch: int, device: str) -> Callable[[], None]:
+    """A closure running one training step of ``impl`` on a fixed random input window."""
+    width, height = (int(v) for v in resolution.split("x"))
     torch.manual_seed(0)
-    model = _build(impl)
-    x = (torch.rand(batch, 2, height, width, STEPS) < DENSITY).float()
+    model = _build(impl).to(device)
+    x = (torch.rand(batch, 2, height, width, STEPS, device=device) < DENSITY).float()
 
     def step() -> None:
         model.zero_grad(set_to_none=True)
         out = model(x)
         out[..., 50:].pow(2).mean().backward()
+        if device.startswith("cuda"):
+            torch.cuda.synchronize()
 
-    before = _current_rss_mib()
-    times = []
-    for i in range(repeats + 1):
-        start = time.perf_counter()
+    return step
+
+
+def peak_memory(impl: str, resolution: str, batch: int, device: str) -> dict:
+    """Peak memory (MiB) of one step, run in a fresh process: resident set on the CPU, the
+    allocator's peak on a GPU; ``growth`` is the peak minus the level before the step."""
+    step = _make_step(impl, resolution, batch, device)
+    if device.startswith("cuda"):
+        before = torch.cuda.memory_allocated() / 2**20
         step()
-        if i:  # the first step warms up allocator and kernels
-            times.append(time.perf_counter() - start)
-    peak = _rss_mib()
-    return {
-        "impl": impl,
-        "resolution": f"{width}x{height}",
-        "batch": batch,
-        "threads": threads,
-        "step_s": statistics.median(times),
-        "peak_rss_mib": peak,
-        "peak_growth_mib": peak - before,
-    }
+        peak = torch.cuda.max_memory_allocated() / 2**20
+    else:
+        _reset_peak_rss()
+        before = _status_mib("VmRSS")
+        step()
+        peak = _status_mib("VmHWM")
+    return {"peak_mib": peak, "growth_mib": peak - before}
+
+
+def step_times(resolution: str, impls: list[str], batch: int, repeats: int, device: str) -> dict:
+    """Median seconds per step of each implementation, their steps interleaved so that both
+    see the same background load; one warm-up step each first."""
+    steps = {impl: _make_step(impl, resolution, batch, device) for impl in impls}
+    for step in steps.values():
+        step()
+    times: dict[str, list[float]] = {impl: [] for impl in impls}
+    for _ in range(repeats):
+        for impl, step in steps.items():
+            start = time.perf_counter()
+            step()
+            times[impl].append(time.perf_counter() - start)
+    return {impl: statistics.median(t) for impl, t in times.items()}
 
 
 def main() -> None:
@@ -131,59 +155,50 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads")
-    parser.add_argument("--one", help=argparse.SUPPRESS)  # internal: run one configuration
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--memory-of", help=argparse.SUPPRESS)  # internal: IMPL:RESOLUTION
     args = parser.parse_args()
+    torch.set_num_threads(args.threads)
 
-    if args.one:
-        impl, resolution = args.one.split(":")
-        width, height = (int(v) for v in resolution.split("x"))
-        print(json.dumps(measure(impl, width, height, args.batch, args.repeats, args.threads)))
+    if args.memory_of:
+        impl, resolution = args.memory_of.split(":")
+        print(json.dumps(peak_memory(impl, resolution, args.batch, args.device)))
         return
 
     rows = []
     for resolution in args.resolutions:
+        seconds = step_times(resolution, args.impls, args.batch, args.repeats, args.device)
         for impl in args.impls:
-            command = [
-                sys.executable,
-                __file__,
-                "--one",
-                f"{impl}:{resolution}",
-                "--batch",
-                str(args.batch),
-                "--repeats",
-                str(args.repeats),
-                "--threads",
-                str(args.threads),
-            ]
+            command = [sys.executable, __file__, "--memory-of", f"{impl}:{resolution}"]
+            command += ["--batch", str(args.batch), "--threads", str(args.threads)]
+            command += ["--device", args.device]
             result = subprocess.run(command, capture_output=True, text=True, check=True)
-            rows.append(json.loads(result.stdout.strip().splitlines()[-1]))
+            memory = json.loads(result.stdout.strip().splitlines()[-1])
+            rows.append({"impl": impl, "resolution": resolution, "step_s": seconds[impl], **memory})
             r = rows[-1]
             print(
-                f"  {r['impl']:10s} {r['resolution']:8s} {r['step_s']:7.2f} s/step  "
-                f"peak RSS {r['peak_rss_mib']:7.0f} MiB (+{r['peak_growth_mib']:.0f})",
+                f"  {impl:10s} {resolution:8s} {r['step_s']:7.2f} s/step  "
+                f"peak {r['peak_mib']:7.0f} MiB (+{r['growth_mib']:.0f})",
                 file=sys.stderr,
             )
 
+    memory_kind = "GPU allocator peak" if args.device.startswith("cuda") else "peak RSS"
     print(
-        f"SNN-6 training step (forward + backward), T = {STEPS}, batch {args.batch}, "
-        f"input density {DENSITY:.0%}, torch {torch.__version__}, {args.threads} threads, "
-        f"median of {args.repeats}"
+        f"SNN-6 training step (forward + backward), T = {STEPS}, batch {args.batch}, input "
+        f"density {DENSITY:.0%}, torch {torch.__version__} on {args.device}, {args.threads} "
+        f"threads, median of {args.repeats} interleaved steps"
     )
     print(
-        "| resolution | implementation | step (s) | peak RSS (MiB) | growth (MiB) | "
-        "time vs spikegyro |"
+        f"| resolution | implementation | step (s) | {memory_kind} (MiB) | growth (MiB) | "
+        "time / spikegyro time |"
     )
     print("|---|---|---:|---:|---:|---:|")
-    for resolution in args.resolutions:
-        ours = next(
-            (r for r in rows if r["resolution"] == resolution and r["impl"] == "spikegyro"), None
+    for r in rows:
+        ours = next(o for o in rows if o["resolution"] == r["resolution"])
+        print(
+            f"| {r['resolution']} | {r['impl']} | {r['step_s']:.2f} | {r['peak_mib']:.0f} | "
+            f"{r['growth_mib']:.0f} | {r['step_s'] / ours['step_s']:.2f}x |"
         )
-        for r in (r for r in rows if r["resolution"] == resolution):
-            ratio = f"{r['step_s'] / ours['step_s']:.2f}x" if ours else "-"
-            print(
-                f"| {resolution} | {r['impl']} | {r['step_s']:.2f} | {r['peak_rss_mib']:.0f} | "
-                f"{r['peak_growth_mib']:.0f} | {ratio} |"
-            )
 
 
 if __name__ == "__main__":
