@@ -75,7 +75,7 @@ def plot_events_and_omega(
     ax.set_ylim(0, events.width)
     ax.set_zlim(events.height, 0)  # image rows grow downwards
     ax.view_init(elev=18, azim=-62)
-    ax.set_box_aspect((2.4, 1.0, events.height / events.width), zoom=1.2)
+    ax.set_box_aspect((2.4, 1.0, events.height / events.width), zoom=1.2 if has_omega else 1.05)
     handles = [
         Line2D([], [], ls="", marker="o", color=c, label=n)
         for c, n in ((ON_COLOR, "ON"), (OFF_COLOR, "OFF"))
