@@ -29,7 +29,8 @@ def predict(
         None,
         "--calib",
         help="Sensor calibration: 'fx fy cx cy k1 k2 p1 p2 k3' (the Event Camera Dataset's "
-        "calib.txt); events are undistorted and reprojected onto the model's camera.",
+        "calib.txt; taken from an ECD folder by default); events are undistorted and "
+        "reprojected onto the model's camera.",
     ),
     intrinsics: tuple[float, float, float, float] = typer.Option(
         None, "--intrinsics", help="Sensor pinhole intrinsics fx fy cx cy (pixels), no distortion."
@@ -50,6 +51,10 @@ def predict(
     if calib is not None and intrinsics is not None:
         raise InputError("--calib and --intrinsics: give one of them, not both.")
     check_prediction_path(out)
+    console = Console(stderr=True)
+    if calib is None and intrinsics is None and (events / "calib.txt").is_file():
+        calib = events / "calib.txt"  # an Event Camera Dataset folder ships its calibration
+        console.print(f"using the calibration {calib}")
     calibration = load_calibration(calib) if calib is not None else None
     if intrinsics is not None:
         calibration = Calibration(*intrinsics)
@@ -60,7 +65,6 @@ def predict(
     if span is not None:
         total_s = max(0.0, (span[1] - span[0]) / 1e6 - start)
         total_s = total_s if end is None else min(total_s, end - start)
-    console = Console(stderr=True)
     columns = [
         TextColumn("[bold]predict"),
         BarColumn(),
