@@ -7,8 +7,8 @@ filters along time without copying.
 
 A layer computes s_out = spike(conv(psp(s_in))) like the official model. Convolution (over
 space) and PSP (over time) are linear and commute, so a conv layer filters on the side with fewer
-neurons: its input for layers 1 and 5 of SNN-6, its output for layers 2-4 (where the convolution
-then sees 0/1 spikes, which it keeps for the backward pass as booleans).
+neurons (for SNN-6 at 240x180: the input of layers 1 and 5, the output of layers 2-4, where the
+convolution then sees 0/1 spikes and keeps them for the backward pass as booleans).
 """
 
 from __future__ import annotations
