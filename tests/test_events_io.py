@@ -223,3 +223,14 @@ def test_cli_info_summarises(tmp_path: Path) -> None:
     )
     assert proc.returncode == 0, proc.stderr
     assert "5,000" in proc.stdout and "240 x 180" in proc.stdout
+
+
+def test_written_files_get_default_permissions(tmp_path: Path) -> None:
+    import os
+
+    umask = os.umask(0o022)
+    try:
+        path = write_recording(tmp_path / "seq.h5", make_recording(n=10))
+    finally:
+        os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o644
