@@ -112,7 +112,30 @@ def simulate_dataset(
         procedural_fraction=procedural_fraction,
         detail_strength=detail,
     )
-    console = Console(stderr=True)
+    simulate_with_progress(
+        out,
+        sequences,
+        seed,
+        config,
+        workers=workers,
+        scheduler=scheduler,
+        compression=None if compression == "none" else compression,
+    )
+
+
+def simulate_with_progress(
+    out: Path,
+    sequences: int,
+    seed: int,
+    config: SimConfig,
+    *,
+    workers: int = 1,
+    scheduler: str | None = None,
+    compression: str | None = None,
+    console: Console | None = None,
+) -> dict:
+    """:func:`generate_dataset` with a progress bar (events/s, ETA) and a one-line summary."""
+    console = console or Console(stderr=True)
     start = time.perf_counter()
     events = 0
     with _progress() as progress:
@@ -125,14 +148,7 @@ def simulate_dataset(
             progress.update(task, completed=done, rate=f"{rate / 1e6:.2f} Mev/s")
 
         meta = generate_dataset(
-            out,
-            sequences,
-            seed,
-            config,
-            workers,
-            scheduler,
-            update,
-            compression=None if compression == "none" else compression,
+            out, sequences, seed, config, workers, scheduler, update, compression=compression
         )
     elapsed = time.perf_counter() - start
     stats = meta.get("statistics", {})
@@ -144,6 +160,7 @@ def simulate_dataset(
         f"mean |omega| {stats.get('mean_omega_norm_deg_s', {}).get('mean', 0):.0f} deg/s; "
         f"{elapsed:.1f} s"
     )
+    return meta
 
 
 def export_official_command(
