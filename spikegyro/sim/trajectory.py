@@ -147,6 +147,8 @@ class Trajectory:
         """The same path played backwards: ω'(t) = −ω(T − t), starting where this one ends.
 
         Time-reversing an event stream (t → T − t, polarity flipped) corresponds to this motion.
+        The simulated streams match only statistically, not event for event: ESIM sets each
+        pixel's reference at the first frame, which differs between the two directions.
         """
         t_end = self.duration_s
         return Trajectory(
