@@ -7,10 +7,12 @@ turns :class:`~spikegyro.errors.InputError` into one line on stderr and exit cod
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import typer
 
 from spikegyro import __version__
+from spikegyro.demo import DemoConfig, run_demo
 from spikegyro.errors import InputError
 from spikegyro.evaluate import commands as evaluate_commands
 from spikegyro.events import commands as events_commands
@@ -41,6 +43,21 @@ def _root(
 
 
 app.command("info")(events_commands.info)
+
+
+@app.command("demo")
+def demo(
+    out: Path = typer.Option(Path("demo-output"), "--out", help="Output folder."),
+    sequences: int = typer.Option(DemoConfig.sequences, min=10, help="Simulated sequences."),
+    train_minutes: float = typer.Option(
+        DemoConfig.train_minutes, min=0.1, help="Training time budget, minutes."
+    ),
+    seed: int = typer.Option(DemoConfig.seed, help="Seed of the dataset and the training run."),
+) -> None:
+    """Simulate a dataset, train SNN-6 on the CPU, evaluate it, and print a summary."""
+    run_demo(DemoConfig(out=out, sequences=sequences, train_minutes=train_minutes, seed=seed))
+
+
 app.command("simulate")(sim_commands.simulate_dataset)
 app.command("export-official")(sim_commands.export_official_command)
 app.command("show")(sim_commands.show)

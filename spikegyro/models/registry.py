@@ -108,6 +108,8 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[nn.Module, dict[str, Any]]
         model.load_state_dict(payload["state_dict"])
     except RuntimeError as exc:
         first = str(exc).splitlines()[0:3]
-        raise InputError(f"{path}: weights do not fit model '{payload['model']}': {' '.join(first)}") from None
+        raise InputError(
+            f"{path}: weights do not fit model '{payload['model']}': {' '.join(first)}"
+        ) from None
     model.eval()
     return model, payload
