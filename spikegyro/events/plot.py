@@ -103,6 +103,10 @@ def plot_events_and_omega(
                     lw=1.5,
                     label="predicted",
                 )
+            lo, hi = a.get_ylim()
+            if hi - lo < 40:  # keep small drifts from looking like large swings
+                mid = 0.5 * (lo + hi)
+                a.set_ylim(mid - 20, mid + 20)
             a.set_ylabel(f"{AXIS_NAMES[k]}\n[deg/s]")
             a.grid(alpha=0.3)
             if k == 0:
