@@ -79,9 +79,17 @@ class SNN6(nn.Module):
         self.in_channels = in_channels
         channels = in_channels
         convs = []
-        for spec in SNN6_LAYERS:
+        for i, spec in enumerate(SNN6_LAYERS):
+            # Layers 2-5 see the spikes of the layer before; the input may hold event counts.
             convs.append(
-                SRMConv(channels, spec.out_channels, spec.params, KERNEL_SIZE, spec.stride)
+                SRMConv(
+                    channels,
+                    spec.out_channels,
+                    spec.params,
+                    KERNEL_SIZE,
+                    spec.stride,
+                    binary_input=i > 0,
+                )
             )
             channels = spec.out_channels
         # Named conv1 … conv5 and fc, as in the official state dict.

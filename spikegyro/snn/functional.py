@@ -243,42 +243,66 @@ def fire(
     return view.back(spikes), view.back(full)
 
 
-def _is_binary(x: torch.Tensor) -> bool:
-    return bool(((x == 0) | (x == 1)).all())
+class _BinaryInputConv(torch.autograd.Function):
+    """conv2d whose 0/1 input is kept for the weight gradient as booleans (4x less memory)."""
 
+    @staticmethod
+    def forward(
+        ctx, images: torch.Tensor, weight: torch.Tensor, stride: int, padding: int
+    ) -> torch.Tensor:
+        ctx.save_for_backward(images.to(torch.bool), weight)
+        ctx.geometry = (stride, padding, images.dtype)
+        return F.conv2d(images, weight, stride=stride, padding=padding)
 
-def _pack_binary(x: torch.Tensor) -> tuple[torch.Tensor, torch.dtype | None]:
-    # Convolutions save their input for the weight gradient; spikes fit in one byte instead of 4.
-    if x.is_floating_point() and x.numel() > 4096 and _is_binary(x):
-        return x.to(torch.bool), x.dtype
-    return x, None
-
-
-def _unpack_binary(packed: tuple[torch.Tensor, torch.dtype | None]) -> torch.Tensor:
-    x, dtype = packed
-    return x if dtype is None else x.to(dtype)
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
+        packed, weight = ctx.saved_tensors
+        stride, padding, dtype = ctx.geometry
+        grad_images, grad_weight, _ = torch.ops.aten.convolution_backward(
+            grad,
+            packed.to(dtype),
+            weight,
+            None,
+            [stride, stride],
+            [padding, padding],
+            [1, 1],
+            False,
+            [0, 0],
+            1,
+            [ctx.needs_input_grad[0], ctx.needs_input_grad[1], False],
+        )
+        return grad_images, grad_weight, None, None
 
 
 def conv_over_time(
-    x: torch.Tensor, weight: torch.Tensor, stride: int = 1, padding: int = 0
+    x: torch.Tensor,
+    weight: torch.Tensor,
+    stride: int = 1,
+    padding: int = 0,
+    *,
+    binary: bool = False,
 ) -> torch.Tensor:
     """2-D convolution applied at every time step at once (time folded into the batch).
 
     Args:
         x: (T, N, C_in, H, W), time-major.
         weight: (C_out, C_in, kH, kW).
+        binary: ``x`` holds only 0 and 1 (spikes); it is then kept for the backward pass as
+            booleans (4x less memory). Not checked: graded input with ``binary=True`` gives
+            wrong weight gradients.
 
     Returns:
         (T, N, C_out, H_out, W_out), stored time-major and channels-last, i.e. as a contiguous
         (T, N, H_out, W_out, C_out) block (the convolution is >2x faster channels-last on CPU for
-        these few channels). When ``x`` holds 0/1 spikes it is kept for the backward pass as
-        booleans (4x less memory).
+        these few channels).
     """
     steps, batch, channels, height, width = x.shape
     # A no-op when x already comes from this function (through the spike layers).
     nhwc = x.permute(0, 1, 3, 4, 2).contiguous()
     images = nhwc.reshape(steps * batch, height, width, channels).permute(0, 3, 1, 2)
-    with torch.autograd.graph.saved_tensors_hooks(_pack_binary, _unpack_binary):
+    if binary:
+        y = _BinaryInputConv.apply(images, weight, stride, padding)
+    else:
         y = F.conv2d(images, weight, stride=stride, padding=padding)
     y = y.contiguous(memory_format=torch.channels_last)
     return y.reshape(steps, batch, *y.shape[1:])

@@ -8,7 +8,7 @@ filters along time without copying.
 A layer computes s_out = spike(conv(psp(s_in))) like the official model. Convolution (over
 space) and PSP (over time) are linear and commute, so a conv layer filters on the side with fewer
 neurons (for SNN-6 at 240x180: the input of layers 1 and 5, the output of layers 2-4, where the
-convolution then sees 0/1 spikes and keeps them for the backward pass as booleans).
+convolution then sees 0/1 spikes and can keep them for the backward pass as booleans).
 """
 
 from __future__ import annotations
@@ -79,7 +79,11 @@ class _SRMLayer(nn.Module):
 
 
 class SRMConv(_SRMLayer):
-    """Spiking 2-D convolution, no bias: (N, C_in, H, W, T) → (N, C_out, H', W', T)."""
+    """Spiking 2-D convolution, no bias: (N, C_in, H, W, T) → (N, C_out, H', W', T).
+
+    ``binary_input=True`` promises 0/1 input (e.g. the spikes of another SRM layer), which then
+    is kept for the backward pass as booleans; leave it False for graded input such as counts.
+    """
 
     def __init__(
         self,
@@ -89,9 +93,11 @@ class SRMConv(_SRMLayer):
         kernel_size: int = 3,
         stride: int = 1,
         padding: int = 0,
+        binary_input: bool = False,
     ) -> None:
         self.stride = stride
         self.padding = padding
+        self.binary_input = binary_input
         super().__init__(params, (out_channels, in_channels, kernel_size, kernel_size))
 
     def output_size(self, height: int, width: int) -> tuple[int, int]:
@@ -115,7 +121,7 @@ class SRMConv(_SRMLayer):
         if channels * height * width <= self.weight.shape[0] * out_height * out_width:
             potential = conv(psp(x, self.srm_kernel, dim=0))
         else:
-            potential = psp(conv(x), self.srm_kernel, dim=0)
+            potential = psp(conv(x, binary=self.binary_input), self.srm_kernel, dim=0)
         return self._fire(potential).permute(1, 2, 3, 4, 0)
 
 
