@@ -125,6 +125,11 @@ def test_run_writes_its_files_and_resumes_to_the_same_state(dataset, tmp_path):
     with open(tmp_path / "b" / "log.csv", newline="") as f:
         assert [int(r["step"]) for r in csv.DictReader(f)] == [1, 2, 3, 4]
 
+    # --init starts from a checkpoint's weights (lr 0 keeps them)
+    init = tiny_config(dataset, tmp_path / "c", init=str(run / "last.pt"), lr=0.0, iterations=1)
+    train(replace(init, val_every=1), progress=False)
+    assert_same_weights(run / "last.pt", tmp_path / "c" / "last.pt")
+
 
 def test_time_budget_stops_gracefully_with_a_checkpoint(dataset, tmp_path):
     result = train(

@@ -30,7 +30,7 @@ from torch.utils.data import DataLoader, Sampler
 
 from spikegyro.errors import InputError
 from spikegyro.events.io import atomic_path
-from spikegyro.models.registry import build_model, save_checkpoint
+from spikegyro.models.registry import build_model, read_checkpoint, save_checkpoint
 from spikegyro.train import distributed
 from spikegyro.train.augment import AugmentConfig
 from spikegyro.train.data import (
@@ -343,7 +343,10 @@ def _train(
     spec = input_spec_of(config)
     kwargs = model_kwargs_of(config, spec)
     seed_everything(config.seed)
-    model = build_model(config.model, **kwargs).to(ctx.device)
+    model = build_model(config.model, **kwargs)
+    if config.init and not resume:
+        _load_init(model, config)
+    model = model.to(ctx.device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: lr_factor(s, config))
 
@@ -482,6 +485,19 @@ def _load_resume(
     scheduler.load_state_dict(state["scheduler"])
     set_rng_states(state["rng"])
     return int(state["step"]), float(state["best"]), float(state["elapsed_s"])
+
+
+def _load_init(model: nn.Module, config: TrainConfig) -> None:
+    payload = read_checkpoint(config.init)
+    if payload["model"] != config.model:
+        raise InputError(
+            f"--init {config.init}: a '{payload['model']}' checkpoint cannot start a "
+            f"'{config.model}' run."
+        )
+    try:
+        model.load_state_dict(payload["state_dict"])
+    except RuntimeError as exc:
+        raise InputError(f"--init {config.init}: weights do not fit ({exc}).") from None
 
 
 def _tensorboard(run_dir: Path) -> Any:

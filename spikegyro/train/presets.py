@@ -30,6 +30,7 @@ class TrainConfig:
         model: registry name: snn6, ann6 or resnet50.
         input: representation: spikes (SNN), voxel or frames (ANNs); "" = the model's default.
         model_kwargs: extra constructor arguments of the model.
+        init: checkpoint whose weights start the training (fine-tuning); "" = random init.
         sensor: (width, height) of the dataset's events, pixels.
         scale: factor on event coordinates before binning (0.5: 240x180 -> 120x90).
         window_ms: window length, ms, of validation windows and of the checkpoint's input spec.
@@ -65,6 +66,7 @@ class TrainConfig:
     model: str = "snn6"
     input: str = ""
     model_kwargs: dict[str, Any] | None = None
+    init: str = ""
     sensor: tuple[int, int] = (240, 180)
     scale: float = 1.0
     window_ms: int = 100
