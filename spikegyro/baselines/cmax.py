@@ -25,7 +25,8 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -85,7 +86,7 @@ class CMaxConfig:
     iterations: int = 6
     grid_points: int = 9
     grid_max_dps: float = 1000.0
-    grid_events: int = 1000
+    grid_events: int = 2000
     starts: int = 2
     grid_every: int = 10
     search_events: int = 3000
@@ -334,6 +335,18 @@ def _make_problem(
     return _Problem(bearings, dt_s, weights, camera, events.width, events.height)
 
 
+@contextmanager
+def _one_thread() -> Iterator[None]:
+    """Run torch on one intra-op thread: the tensors here are small, and extra threads only add
+    synchronization (and collapse under CPU contention)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
 def estimate_window(
     events: EventArray,
     camera: Intrinsics | None = None,
@@ -350,7 +363,7 @@ def estimate_window(
         init: warm start (3,) rad/s, e.g. the previous window's estimate. With ``grid`` it
             competes with the best grid points, so a bad warm start cannot trap the estimate;
             without, it is refined at full resolution only (fast tracking).
-        grid: run the coarse grid search (always done when there is no ``init``).
+        grid: run the coarse grid search (without it the search starts from ``init`` or 0).
 
     Returns:
         ω (3,) rad/s; ``init`` (or zeros) when the window holds fewer than ``config.min_events``
@@ -361,14 +374,26 @@ def estimate_window(
     fallback = np.zeros(3) if init is None else np.asarray(init, dtype=np.float64)
     if len(events) < max(config.min_events, 2) or events.t[-1] == events.t[0]:
         return fallback.copy()
+    with _one_thread():
+        return _estimate(events, camera, config, fallback, init is not None, grid)
+
+
+def _estimate(
+    events: EventArray,
+    camera: Intrinsics,
+    config: CMaxConfig,
+    fallback: np.ndarray,
+    warm: bool,
+    grid: bool,
+) -> np.ndarray:
     rng = np.random.default_rng(config.seed)
     problem = _make_problem(events, camera, config, rng)
     search = problem.subset(config.search_events, rng)
     starts = _grid_starts(search.subset(config.grid_events, rng), config) if grid else []
-    if init is not None or not starts:
+    if warm or not starts:
         starts.insert(0, torch.as_tensor(fallback, dtype=torch.float32))
     # A warm start without a grid search is already in the right basin: refine at full res only.
-    levels = config.levels if grid or init is None else config.levels[-1:]
+    levels = config.levels if grid or not warm else config.levels[-1:]
     finest = config.levels[-1]
     best, best_score = starts[0], -math.inf
     for omega in starts:
