@@ -12,6 +12,7 @@ from pathlib import Path
 import typer
 
 from spikegyro import __version__
+from spikegyro.baselines import commands as baselines_commands
 from spikegyro.demo import DemoConfig, run_demo
 from spikegyro.errors import InputError
 from spikegyro.evaluate import commands as evaluate_commands
@@ -65,6 +66,7 @@ app.command("evaluate")(evaluate_commands.evaluate)
 app.command("report")(evaluate_commands.report)
 app.command("train")(train_commands.train_command)
 app.command("predict")(stream_commands.predict)
+app.add_typer(baselines_commands.app, name="baseline")
 
 
 def main() -> None:

@@ -176,3 +176,31 @@ def test_simulator_pure_rotations_sign_and_accuracy(
     estimate = cmax.estimate_window(events.slice_time(5_000, 35_000), camera)
     assert np.sign(estimate[axis]) == sign, f"{name}: {np.degrees(estimate)} deg/s"
     assert_close_omega(estimate, omega)
+
+
+def test_cli_writes_per_ms_predictions_like_predict(tmp_path, textured_scene) -> None:
+    from typer.testing import CliRunner
+
+    from spikegyro.cli import app
+    from spikegyro.events.io import write_recording
+    from spikegyro.stream.writer import read_predictions
+
+    sim, camera, panorama = textured_scene
+    omega = np.radians([60.0, -150.0, 40.0])
+    trajectory = sim.Trajectory.constant(omega, duration_s=0.06)
+    rec = sim.simulate(panorama, trajectory, camera, sim.EventSimConfig(), np.random.default_rng(0))
+    path = tmp_path / "seq.h5"
+    write_recording(path, rec)
+    out = tmp_path / "pred.csv"
+    args = ["baseline", "cmax", str(path), "--gyro", str(path), "--stride-ms", "10"]
+    result = CliRunner().invoke(app, [*args, "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    pred = read_predictions(out)
+    # Like `predict`: 1 ms bins from the first event's whole millisecond to the last event.
+    t0 = rec.events.t[0] // 1000 * 1000
+    steps = -(-(rec.events.t[-1] + 1 - t0) // 1000)
+    np.testing.assert_array_equal(pred["t_us"], t0 + 1000 * np.arange(1, steps + 1))
+    np.testing.assert_allclose(pred["gyro_omega"], np.tile(omega, (steps, 1)), atol=1e-5)
+    assert not pred["omega"][:9].any()  # nothing before the first estimate, 10 ms in
+    for row in pred["omega"][9:]:
+        assert_close_omega(row, omega)
