@@ -8,9 +8,10 @@ angular velocity over that window.
 
 Normalization: each convolution is followed by batch normalization by default (the paper does
 not say). Voxel grids hold signed event counts whose scale grows with the rotation speed, so the
-activations of an unnormalized stack change scale from window to window; batch norm removes that
-and lets the SNN's learning rate serve here too. ``batch_norm=False`` gives the bare layout
-(convolutions then carry a bias, since nothing else offsets them).
+activations of an unnormalized stack change scale from window to window; batch norm removes that.
+Measured (BENCHMARKS.md, "ANN baselines"): with the same 150-step ``cpu`` schedule, held-out
+median relative error 0.70 with batch norm vs 0.96 without (the mean predictor: 0.95).
+``batch_norm=False`` gives the bare layout (convolutions then carry a bias).
 """
 
 from __future__ import annotations
