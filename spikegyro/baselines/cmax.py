@@ -68,8 +68,8 @@ class CMaxConfig:
         grid_max_dps: the grid spans ``[-grid_max_dps, grid_max_dps]`` deg/s on each axis.
         grid_events: events (random subsample) scored by the grid.
         starts: how many of the best grid points are refined (besides the warm start).
-        grid_every: in a stream, search the grid again every ``grid_every`` estimates (besides
-            the first) so a lost track recovers; 0: only at the start.
+        grid_every: in a stream, search the grid again every ``grid_every`` estimates so a
+            lost track recovers (0: never); it is always searched until the window is full.
         search_events: events (random subsample) used to refine and compare the starts.
         use_polarity: accumulate signed polarities instead of event counts.
         seed: seed of the event subsampling.
@@ -453,11 +453,15 @@ def predict_stream(
     t_end = int(events.t[-1]) + 1 if t_end_us is None else int(t_end_us)
     times = np.arange(t_first, t_end + 1, stride_us, dtype=np.int64)
     omegas = np.zeros((len(times), 3))
-    previous = None
+    history_us = int(events.t[0]) if len(events) else t_first
+    previous, filling = None, True
     for k, t in enumerate(times):
         window = events[window_start(events, int(t), config) : int(np.searchsorted(events.t, t))]
-        grid = previous is None or (config.grid_every > 0 and k % config.grid_every == 0)
+        # Estimates from the short windows at a stream's start are the least reliable, so the
+        # grid is searched until the window is full, then every grid_every estimates.
+        grid = filling or (config.grid_every > 0 and k % config.grid_every == 0)
         previous = estimate_window(window, camera, config, init=previous, grid=grid)
+        filling = t - config.window_ms * 1000 < history_us
         omegas[k] = previous
         if progress is not None:
             progress(k + 1, len(times))
