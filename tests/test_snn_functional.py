@@ -112,3 +112,22 @@ def test_conv_over_time_equals_per_step_conv_including_gradients(binary):
     (y_ref * g).sum().backward()
     torch.testing.assert_close(y, y_ref)
     torch.testing.assert_close(w.grad, w_ref.grad, rtol=1e-4, atol=1e-4)  # summation order
+
+
+def test_spike_fn_overwrite_matches_and_leaves_the_full_potential():
+    theta, nu = 0.3, refractory_kernel(0.3, 4.0)
+    gen = torch.Generator().manual_seed(2)
+    base = torch.rand(30, 50, generator=gen) * 0.6
+    g = torch.randn(30, 50, generator=gen)
+    results = []
+    for overwrite in (False, True):
+        w = torch.ones((), requires_grad=True)
+        v = base * w  # an intermediate, like a layer's potential
+        spikes = spike_fn(v, theta, nu, scale_rho=0.5, dim=0, overwrite=overwrite)
+        (spikes * g).sum().backward()
+        results.append((spikes.detach(), w.grad.clone(), v.detach().clone()))
+    (s0, g0, v0), (s1, g1, v1) = results
+    assert torch.equal(s0, s1) and s0.sum() > 0
+    torch.testing.assert_close(g0, g1)
+    torch.testing.assert_close(v0, base)  # untouched without overwrite
+    torch.testing.assert_close(v1, fire(base, theta, nu, dim=0)[1])  # ν added in place

@@ -138,17 +138,21 @@ def surrogate_gradient(
 
 
 def _fire_rows(
-    rows: torch.Tensor, theta: float, ref_kernel: torch.Tensor
+    rows: torch.Tensor, theta: float, ref_kernel: torch.Tensor, *, in_place: bool = False
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Spike recursion on a (T, M) potential; returns (spikes, potential with refractoriness).
 
     At step t every neuron with u[t] ≥ θ spikes, and ν[k]·spike is added to its u[t + k] for
     k = 1 … len(ν) − 1 (ν[0] must be 0). Whole-row operations only; the loop is over time.
+    ``in_place`` adds the refractory responses to ``rows`` itself (which must be contiguous).
     """
     if ref_kernel.dim() != 1 or ref_kernel.numel() == 0 or float(ref_kernel[0]) != 0.0:
         raise ValueError("ref_kernel must be a 1-D tensor with ref_kernel[0] == 0")
-    potential = torch.empty(rows.shape, dtype=rows.dtype, device=rows.device)
-    potential.copy_(rows)
+    if in_place:
+        potential = rows
+    else:
+        potential = torch.empty(rows.shape, dtype=rows.dtype, device=rows.device)
+        potential.copy_(rows)
     spikes = torch.empty_like(potential)
     taps = ref_kernel[1:].to(device=rows.device, dtype=rows.dtype)[:, None]
     steps = rows.shape[0]
@@ -193,16 +197,22 @@ class _SpikeFunction(torch.autograd.Function):
         ref_kernel: torch.Tensor,
         scale_rho: float,
         tau_rho: float,
-    ) -> torch.Tensor:
-        spikes, potential = _fire_rows(rows, theta, ref_kernel)
+        overwrite: bool,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        in_place = overwrite and rows.is_contiguous()
+        spikes, potential = _fire_rows(rows, theta, ref_kernel, in_place=in_place)
+        if in_place:
+            ctx.mark_dirty(rows)
+        ctx.mark_non_differentiable(potential)
         ctx.save_for_backward(potential)
         ctx.constants = (theta, scale_rho, tau_rho)
-        return spikes
+        return spikes, potential
 
     @staticmethod
-    def backward(ctx, grad: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
+    def backward(ctx, grad: torch.Tensor, _: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
         (potential,) = ctx.saved_tensors
-        return surrogate_gradient(potential, *ctx.constants).mul_(grad), None, None, None, None
+        rho = surrogate_gradient(potential, *ctx.constants).mul_(grad)
+        return rho, None, None, None, None, None
 
 
 def spike_fn(
@@ -212,6 +222,8 @@ def spike_fn(
     scale_rho: float,
     tau_rho: float = TAU_RHO,
     dim: int = -1,
+    *,
+    overwrite: bool = False,
 ) -> torch.Tensor:
     """Spikes of SRM neurons driven by the sub-threshold ``potential``, with SLAYER's gradient.
 
@@ -225,12 +237,15 @@ def spike_fn(
         theta: threshold θ; ref_kernel: ν from :func:`spikegyro.snn.kernels.refractory_kernel`.
         scale_rho, tau_rho: surrogate height (relative to 1/θ) and width (relative to θ).
         dim: the time axis.
+        overwrite: reuse the storage of ``potential`` (when time-major) for the potential with
+            refractory responses that the backward pass keeps; saves a copy, destroys the input.
 
     Returns:
         0/1 spikes shaped like ``potential`` (time-major storage).
     """
     view = _TimeRows(potential, dim)
-    return view.back(_SpikeFunction.apply(view.rows, theta, ref_kernel, scale_rho, tau_rho))
+    spikes, _ = _SpikeFunction.apply(view.rows, theta, ref_kernel, scale_rho, tau_rho, overwrite)
+    return view.back(spikes)
 
 
 @torch.no_grad()

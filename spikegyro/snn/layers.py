@@ -71,11 +71,16 @@ class _SRMLayer(nn.Module):
             self.weight.uniform_(-bound, bound)
 
     def _fire(self, potential: torch.Tensor) -> torch.Tensor:
-        """Spikes of a time-major (T, …) potential (the potential itself when non-spiking)."""
+        """Spikes of a time-major (T, …) potential (the potential itself when non-spiking).
+
+        The potential is an intermediate of this layer, so its storage is reused.
+        """
         if not self.params.spiking:
             return potential
         p = self.params
-        return spike_fn(potential, p.theta, self.ref_kernel, p.scale_rho, p.tau_rho, dim=0)
+        return spike_fn(
+            potential, p.theta, self.ref_kernel, p.scale_rho, p.tau_rho, dim=0, overwrite=True
+        )
 
 
 class SRMConv(_SRMLayer):
