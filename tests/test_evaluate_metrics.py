@@ -85,6 +85,44 @@ def test_bad_shapes_short_windows_and_nan_are_rejected():
         metrics.rmse(bad, np.zeros((1, 60, 3)))
 
 
+def test_sub_windows_are_aligned_with_the_window_start_and_wholly_evaluated():
+    assert metrics.sub_windows(100) == [(60, 80), (80, 100)]  # [40, 60) straddles step 50
+    assert metrics.sub_windows(100, 20, 60) == [(60, 80), (80, 100)]
+    assert metrics.sub_windows(100, 20, 0) == [(0, 20), (20, 40), (40, 60), (60, 80), (80, 100)]
+    assert metrics.sub_windows(100, 25) == [(50, 75), (75, 100)]
+    assert metrics.sub_windows(90) == [(60, 80)]  # [80, 100) would run past the window
+    assert metrics.sub_windows(70) == []
+
+
+def test_window_metrics_compare_sub_window_means():
+    pred = np.zeros((2, 100, 3))
+    gt = np.zeros((2, 100, 3))
+    pred[:, 50:60] = 1e3  # the settling steps and [40, 60) must not count
+    # Window 0, [60, 80): truth 10 deg/s on tilt, prediction alternating 8 and 16 (mean 12).
+    gt[0, 60:80, 0] = 10
+    pred[0, 60:80:2, 0], pred[0, 61:80:2, 0] = 8, 16
+    # [80, 100): truth 20 then 0 deg/s on pan (mean 10), prediction (3, 14, 0): error 5.
+    gt[0, 80:90, 1] = 20
+    pred[0, 80:100] = [3, 14, 0]
+    # Window 1, [60, 80): mean truth 0.5 deg/s (too slow for a relative error), error 4.
+    gt[1, 60:80, 2], pred[1, 60:80, 2] = 0.5, 4.5
+    # [80, 100): truth -30, prediction -27 deg/s on roll.
+    gt[1, 80:100, 2], pred[1, 80:100, 2] = -30, -27
+    w = metrics.window_metrics(np.radians(pred), np.radians(gt))
+    assert w["window_ms"] == 20 and w["sub_windows_ms"] == [[60, 80], [80, 100]]
+    assert (w["n_windows"], w["n_windows_relative"]) == (4, 3)
+    assert w["mean_euclidean_error_deg_s"] == pytest.approx((2 + 5 + 4 + 3) / 4)
+    assert w["rmse_deg_s"] == pytest.approx(math.sqrt((4 + 25 + 16 + 9) / 4))
+    assert w["median_relative_error"] == pytest.approx(0.2)  # of 0.2, 0.5 and 0.1
+    # Per millisecond over the same steps, the alternation and the step in the truth count.
+    per_ms = (20 * 4 + 10 * math.sqrt(45) + 10 * math.sqrt(205) + 20 * 4 + 20 * 3) / 80
+    assert metrics.mean_euclidean_error(np.radians(pred), np.radians(gt), 60) == pytest.approx(
+        per_ms
+    )
+    short = metrics.window_metrics(np.zeros((1, 70, 3)), np.zeros((1, 70, 3)))
+    assert short["n_windows"] == 0 and short["rmse_deg_s"] is None
+
+
 def test_speed_bin_edges_are_half_open():
     speeds = np.array([0, 99.999, 100, 250, 499.9, 500, 1e6])
     np.testing.assert_array_equal(bins.speed_bin_index(speeds), [0, 0, 1, 2, 4, 5, 5])

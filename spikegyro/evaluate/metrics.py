@@ -10,6 +10,12 @@ Names are honest: the paper's table says "RMSE" but its code computes the *mean*
 mean). The paper's "relative error" is the median over (window, step) pairs of
 ||omega - omega_hat|| / ||omega_hat||, leaving out pairs whose true speed is under 1 deg/s
 (:func:`median_relative_error`).
+
+Per-window metrics (:func:`window_metrics`) compare *means over 20 ms sub-windows* instead of
+single milliseconds, so a per-ms SNN and an ANN that predicts one mean per 20 ms window compete on the
+ANN's terms too. The sub-windows are ``[j * 20, (j + 1) * 20)`` ms from the window start (the
+ANNs' ``target_ms`` windows, see :func:`spikegyro.train.data.encode_target`) that lie wholly in
+the evaluated steps: for 100 ms windows and ``start = 50``, ``[60, 80)`` and ``[80, 100)``.
 """
 
 from __future__ import annotations
@@ -24,6 +30,9 @@ EVAL_START_STEP = 50
 MIN_SPEED_DEG_S = 1.0
 """Pairs (and, per axis, components) with a true value below this (deg/s) are left out of
 relative errors, which are unbounded as the true value goes to zero."""
+
+WINDOW_METRIC_MS = 20
+"""Sub-window length (ms) of :func:`window_metrics`: the paper's ANN window."""
 
 AXES = ("tilt", "pan", "roll")
 """Names of the three components omega_x, omega_y, omega_z (camera x right, y down, z forward)."""
@@ -174,4 +183,58 @@ def summary(
         "n_pairs": int(p.shape[0] * p.shape[1]),
         "n_pairs_relative": int(rel.size),
         "per_axis": axis_metrics(pred, gt, start, min_speed_deg_s),
+    }
+
+
+def sub_windows(
+    num_steps: int, window_ms: int = WINDOW_METRIC_MS, start: int = EVAL_START_STEP
+) -> list[tuple[int, int]]:
+    """The sub-windows ``[a, b)`` (steps = ms from the window start) of :func:`window_metrics`.
+
+    They are aligned with the window start (``a`` a multiple of ``window_ms``) and lie wholly in
+    ``[start, num_steps)``; a partial sub-window at either end is left out.
+    """
+    if window_ms <= 0:
+        raise ValueError(f"window_ms must be positive, got {window_ms}")
+    first = -(-start // window_ms)  # the first aligned sub-window starting at or after `start`
+    return [(j * window_ms, (j + 1) * window_ms) for j in range(first, num_steps // window_ms)]
+
+
+def window_metrics(
+    pred: np.ndarray,
+    gt: np.ndarray,
+    window_ms: int = WINDOW_METRIC_MS,
+    start: int = EVAL_START_STEP,
+    min_speed_deg_s: float = MIN_SPEED_DEG_S,
+) -> dict[str, Any]:
+    """Errors of the mean prediction against the mean truth over each :func:`sub_windows`.
+
+    ``pred`` and ``gt`` are (n, T, 3) rad/s. Each (window, sub-window) pair contributes one
+    error between the two means, and the statistics are those of :func:`summary`: median
+    relative error (unitless; pairs whose mean true speed is under ``min_speed_deg_s`` left out),
+    mean Euclidean error and RMSE (deg/s). JSON-ready dict; the metrics are None when no
+    sub-window fits in the evaluated steps.
+    """
+    p, g = evaluated_steps(pred, gt, start)
+    bounds = sub_windows(start + p.shape[1], window_ms, start)
+    result: dict[str, Any] = {"window_ms": window_ms, "sub_windows_ms": [list(b) for b in bounds]}
+    if not bounds:
+        return {
+            **result,
+            "median_relative_error": None,
+            "mean_euclidean_error_deg_s": None,
+            "rmse_deg_s": None,
+            "n_windows": 0,
+            "n_windows_relative": 0,
+        }
+    p_mean = np.stack([p[:, a - start : b - start].mean(axis=1) for a, b in bounds], axis=1)
+    g_mean = np.stack([g[:, a - start : b - start].mean(axis=1) for a, b in bounds], axis=1)
+    rel = relative_errors(p_mean, g_mean, 0, min_speed_deg_s)
+    return {
+        **result,
+        "median_relative_error": float(np.median(rel)) if rel.size else None,
+        "mean_euclidean_error_deg_s": mean_euclidean_error(p_mean, g_mean, 0),
+        "rmse_deg_s": rmse(p_mean, g_mean, 0),
+        "n_windows": int(p_mean.shape[0] * p_mean.shape[1]),
+        "n_windows_relative": int(rel.size),
     }
