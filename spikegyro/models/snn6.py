@@ -134,16 +134,20 @@ class SNN6(nn.Module):
                 f"{side}x{side} px (5 unpadded 3x3 convolutions); use a larger sensor or scale."
             )
 
-    def forward_with_spikes(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
-        """Run the network; returns (ω (N, 3, T) rad/s, [spikes (N, C, H, W, T) of layers 1–5])."""
+    def _run(self, x: torch.Tensor, keep_spikes: bool) -> tuple[torch.Tensor, list[torch.Tensor]]:
         self._check_input(x)
         spikes = x if x.is_floating_point() else x.to(self.fc.weight.dtype)
         per_layer = []
         for conv in self.convs:
             spikes = conv(spikes)
-            per_layer.append(spikes)
+            if keep_spikes:  # otherwise each layer's spikes are freed as soon as possible
+                per_layer.append(spikes)
         return self.fc(self.pool(spikes)), per_layer
+
+    def forward_with_spikes(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """Run the network; returns (ω (N, 3, T) rad/s, [spikes (N, C, H, W, T) of layers 1–5])."""
+        return self._run(x, keep_spikes=True)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """ω (N, 3, T) in rad/s from input spikes (N, 2, H, W, T)."""
-        return self.forward_with_spikes(x)[0]
+        return self._run(x, keep_spikes=False)[0]
