@@ -18,9 +18,12 @@ for layer l = 1…5 at step t, with s_0 the input and all history before t = 0 z
 then m[t] = mean over (h, w) of s_5[t] (N, 256); y[t] = W_fc · m[t] (N, 3);
 ω[t] = Σ_k ε_8[k]·y[t − k].
 The official code filters before convolving (conv2d(psp(s))); both maps are linear, so the two
-orders are equal up to float rounding. The batch implementation sums the PSP in a matrix
-product, so a step-by-step one agrees to ~1e-6 and can differ in a spike only where u is within
-rounding of θ.
+orders are equal up to float rounding, and :class:`spikegyro.snn.layers.SRMConv` filters on
+whichever side has fewer neurons. The batch implementation sums the PSP in a matrix product, so
+a step-by-step one agrees to ~1e-6 and can differ in a spike only where u is within rounding
+of θ. Inputs must be at least 63x63 px (layer 5 then has a 1x1 map); 240x180 gives 12x8 maps at
+layer 5, 120x90 gives 4x2. The spikes of :meth:`SNN6.forward_with_spikes` are (N, C, H, W, T)
+views of time-major, channels-last storage.
 """
 
 from __future__ import annotations
