@@ -148,6 +148,53 @@ def test_report_compares_runs_beside_the_paper(evaluated, tmp_path):
         compare_runs([tmp_path / "nothing"], tmp_path / "x")
 
 
+def test_per_window_metrics_compare_20_ms_means_and_are_labeled(evaluated):
+    out, result = evaluated
+    saved = np.load(out / "predictions.npz")
+    for key, pred in (("model", saved["pred"]), ("mean", saved["mean_omega"])):
+        pred = np.broadcast_to(pred, saved["gt"].shape)
+        errors = [
+            np.linalg.norm(pred[:, a:b].mean(axis=1) - saved["gt"][:, a:b].mean(axis=1), axis=-1)
+            for a, b in ((60, 80), (80, 100))
+        ]
+        w = result[key]["window_metrics"]
+        assert (w["window_ms"], w["sub_windows_ms"], w["n_windows"]) == (
+            20,
+            [[60, 80], [80, 100]],
+            6,
+        )
+        assert w["mean_euclidean_error_deg_s"] == pytest.approx(np.degrees(errors).mean())
+    saved_json = json.loads((out / "metrics.json").read_text())
+    assert saved_json["model"]["window_metrics"] == result["model"]["window_metrics"]
+    for page in ((out / "report.md").read_text(), (out / "report.html").read_text()):
+        assert "per ms (steps ≥ 50)" in page
+        assert "per 20 ms window (mean prediction vs mean truth)" in page
+        assert "[60, 80) ms and [80, 100) ms" in page
+
+
+def test_report_finds_the_paper_row_from_the_checkpoint_not_the_name(evaluated, tmp_path):
+    out, _ = evaluated
+    runs = []
+    for name, arch, rep in (("ResNet-50 (V)", "resnet50", "voxel"), ("mine", "resnet50", "frames"),
+                            ("ANN-6 (V)", "ann6", "voxel")):  # fmt: skip
+        data = json.loads((out / "metrics.json").read_text())
+        data["model"].update(name=name, checkpoint_model=arch)
+        data["model"]["input"]["representation"] = rep
+        run = tmp_path / arch / rep
+        run.mkdir(parents=True)
+        (run / "metrics.json").write_text(json.dumps(data))
+        runs.append(run)
+    compare_runs(runs, tmp_path / "cmp")
+    saved = json.loads((tmp_path / "cmp" / "comparison.json").read_text())
+    rows = {k: v["paper_row"] for k, v in saved.items()}
+    assert rows == {"ResNet-50 (V)": "ResNet-50 (voxel)", "mine": "ResNet-50 (accumulated frames)",
+                    "ANN-6 (V)": "ANN-6 (voxel)", "Mean": "Mean"}  # fmt: skip
+    assert saved["mine"]["window_metrics"]["sub_windows_ms"] == [[60, 80], [80, 100]]
+    md = (tmp_path / "cmp" / "report.md").read_text()
+    for numbers in ("| 0.15 | 36.8 |", "| 0.22 | 66.8 |", "| 0.22 | 59.0 |", "| 1.00 | 226.9 |"):
+        assert numbers in md, numbers
+
+
 def test_official_checkpoint_is_recognised_and_checked_against_the_data(dataset, tmp_path):
     model = build_model("snn6")
     state = {f"conv{i}.weight": c.weight.detach()[..., None] for i, c in enumerate(model.convs, 1)}
@@ -208,3 +255,19 @@ def test_without_a_training_split_the_mean_predictor_says_zero(dataset, tmp_path
     assert result["mean"]["omega_rad_s"] == [0.0, 0.0, 0.0]
     assert any("mean predictor uses omega = 0" in w for w in result["warnings"])
     assert result["mean"]["metrics"] == result["model"]["metrics"]  # both predict zeros
+
+
+def test_ann_whose_windows_do_not_tile_20_ms_is_flagged(dataset, tmp_path):
+    path = tmp_path / "ann6.pt"
+    spec = {"representation": "voxel", "sensor": list(SENSOR), "scale": 1.0, "window_ms": 100,
+            "output": "window_mean", "num_bins": 5, "target_ms": 25}  # fmt: skip
+    kwargs = {"in_channels": 5}
+    save_checkpoint(path, build_model("ann6", **kwargs), name="ann6", model_kwargs=kwargs,
+                    input_spec=spec)  # fmt: skip
+    result = run_evaluation(dataset, path, "test", tmp_path / "out", name="x", limit=1,
+                            num_examples=0)  # fmt: skip
+    assert any("means over 25 ms" in w for w in result["warnings"])
+    pred = np.load(tmp_path / "out" / "predictions.npz")["pred"][0]
+    assert (pred[75:] == pred[75]).all() and (pred[50:75] == pred[50]).all()  # held 25 ms
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "| x | " in md and "| ANN-6 (voxel) | 0.22 | 59.0 |" in md  # by checkpoint, not name

@@ -3,8 +3,9 @@
 ``evaluate`` runs one model (a checkpoint, the paper's official weights, or contrast maximization)
 and the mean predictor over a split's fixed windows, and writes into ``OUT``:
 
-- ``metrics.json``: overall, per-axis and per-speed-bin metrics of the model (key ``model``) and
-  of the mean predictor (key ``mean``), the SNN's spike statistics, data summary and warnings;
+- ``metrics.json``: overall per-ms (``metrics``), per-20-ms-window (``window_metrics``), per-axis
+  and per-speed-bin metrics of the model (key ``model``) and of the mean predictor (key ``mean``),
+  the SNN's spike statistics, data summary and warnings;
 - ``predictions.npz``: ``pred``, ``gt`` (n, T, 3) rad/s, ``mean_omega`` (3,) rad/s, ``sources``,
   ``t_start_us``, ``num_events``, so ``report`` and re-analysis never rerun a model;
 - ``bins.png`` (paper Fig. 4), ``axes.png`` (Fig. 5), ``window_<i>.png`` (Fig. 3);
@@ -34,12 +35,15 @@ from spikegyro.errors import InputError
 from spikegyro.evaluate import figures, metrics
 from spikegyro.evaluate.bins import SPEED_BIN_EDGES_DEG_S, bin_labels, empty_bins, per_bin_metrics
 from spikegyro.evaluate.report import (
+    PER_MS_LABEL,
+    PER_WINDOW_LABEL,
     Block,
     FigureRef,
+    Table,
     axis_table,
     bin_table,
-    fmt,
     overall_table,
+    paper_row,
     write_report,
 )
 from spikegyro.evaluate.spikes import spike_statistics, spike_table
@@ -126,17 +130,25 @@ def _subject(
 ) -> tuple[tuple[torch.nn.Module, dict[str, Any]] | None, InputSpec, str, dict[str, Any]]:
     """What is evaluated: (model and payload or None for CMax, input spec, name, description)."""
     if checkpoint is None:
-        info = {"source": "contrast maximization (spikegyro.baselines.cmax)"}
+        info = {"method": "cmax", "source": "contrast maximization (spikegyro.baselines.cmax)"}
         return None, InputSpec(), "CMax", info
     net, payload, name = load_model(checkpoint)
     spec = spec_of(payload)
-    info = {"source": str(checkpoint), "checkpoint_model": payload.get("model")}
+    info = {
+        "method": "checkpoint",
+        "source": str(checkpoint),
+        "checkpoint_model": payload.get("model"),
+    }
     info["input"] = spec.as_dict()
     return (net, payload), spec, name, info
 
 
 def _model_results(pred: np.ndarray, gt: np.ndarray) -> dict[str, Any]:
-    return {"metrics": metrics.summary(pred, gt), "per_bin": per_bin_metrics(pred, gt)}
+    return {
+        "metrics": metrics.summary(pred, gt),
+        "window_metrics": metrics.window_metrics(pred, gt),
+        "per_bin": per_bin_metrics(pred, gt),
+    }
 
 
 def _finite(pred: np.ndarray, name: str, warnings: list[str]) -> tuple[np.ndarray, int]:
@@ -295,6 +307,11 @@ def run_evaluation(
         raise InputError(f"{data_dir / split}: no windows of {spec.window_ms} ms to evaluate.")
     if checkpoint is not None:
         _check_resolution(spec, windows, Path(checkpoint))
+    if spec.output == "window_mean" and metrics.WINDOW_METRIC_MS % spec.target_ms:
+        warnings.append(
+            f"{name} predicts means over {spec.target_ms} ms, which do not tile the "
+            f"{metrics.WINDOW_METRIC_MS} ms windows of the per-window metrics."
+        )
     picks = examples if examples is not None else choose_examples(windows, num_examples)
     bad = [i for i in picks if not 0 <= i < len(windows)]
     if bad:
@@ -327,6 +344,7 @@ def run_evaluation(
             )
     mean_res = {
         "name": "Mean",
+        "method": "mean",
         "source": mean_source,
         "omega_rad_s": mean_omega.tolist(),
         **_model_results(mean_pred, gt),
@@ -396,7 +414,7 @@ def _evaluation_report(out_dir: Path, result: dict[str, Any], examples: list[Fig
         *[f"Warning: {w}" for w in result["warnings"]],
         "## Overall",
         overall_table(
-            {name: model["metrics"], "Mean": mean["metrics"]},
+            {name: model, "Mean": mean},
             "Overall errors; paper columns: Gehrig et al. 2020, Table I, on their own data "
             "(Sun360 panoramas through ESIM), not ours",
         ),
@@ -417,19 +435,22 @@ def _evaluation_report(out_dir: Path, result: dict[str, Any], examples: list[Fig
     write_report(out_dir, f"spikegyro evaluation: {name}", blocks)
 
 
+def console_table(title: str, table: Table) -> RichTable:
+    """``table`` for the terminal, with the long per-ms / per-window labels shortened."""
+    out = RichTable(title=escape(title))
+    short_window = f"per {metrics.WINDOW_METRIC_MS} ms win."
+    for i, head in enumerate(table.header):
+        head = head.replace(PER_MS_LABEL, "per ms").replace(PER_WINDOW_LABEL, short_window)
+        out.add_column(escape(head), justify="left" if i == 0 else "right")
+    for row in table.rows:
+        out.add_row(*(escape(c) for c in row))
+    return out
+
+
 def _print_summary(console: Console, result: dict[str, Any], out_dir: Path) -> None:
-    table = RichTable(title=escape(f"{result['data']['dir']} / {result['data']['split']}"))
-    for col in ("model", "median rel. error", 'mean Eucl. error ("RMSE")', "RMSE"):
-        table.add_column(col, justify="right" if col != "model" else "left")
-    for key in ("model", "mean"):
-        m = result[key]["metrics"]
-        table.add_row(
-            escape(result[key]["name"]),
-            fmt(m["median_relative_error"]),
-            f"{fmt(m['mean_euclidean_error_deg_s'], 1)} deg/s",
-            f"{fmt(m['rmse_deg_s'], 1)} deg/s",
-        )
-    console.print(table)
+    models = {result["model"]["name"]: result["model"], "Mean": result["mean"]}
+    title = f"{result['data']['dir']} / {result['data']['split']}"
+    console.print(console_table(title, overall_table(models, "")))
     for w in result["warnings"]:
         console.print(f"[yellow]warning:[/] {escape(w)}")
     console.print(f"wrote {out_dir}/metrics.json, predictions.npz, report.html, report.md")
@@ -513,8 +534,8 @@ def compare_runs(
     blocks: list[Block] = [
         *notes,
         overall_table(
-            {k: m["metrics"] for k, m in models.items()},
-            "Overall errors (steps >= 50); paper columns: Gehrig et al. 2020, Table I, on their "
+            models,
+            "Overall errors; paper columns: Gehrig et al. 2020, Table I, on their "
             "own data (Sun360 panoramas through ESIM), not ours",
         ),
         FigureRef("Median relative error per true-speed bin (paper Fig. 4).", "bins.png"),
@@ -523,7 +544,15 @@ def compare_runs(
     write_report(out_dir, "spikegyro comparison", blocks)
     _write_json(
         out_dir / "comparison.json",
-        {k: {"metrics": m["metrics"], "per_bin": m["per_bin"]} for k, m in models.items()},
+        {
+            k: {
+                "metrics": m["metrics"],
+                "window_metrics": m.get("window_metrics"),
+                "paper_row": paper_row(m),
+                "per_bin": m["per_bin"],
+            }
+            for k, m in models.items()
+        },
     )
     return models
 
@@ -535,16 +564,5 @@ def report(
     """Compare evaluated runs (and the mean predictor) beside the paper's published numbers."""
     console = Console(stderr=True)
     models = compare_runs(list(run_dirs), out)
-    table = RichTable(title="comparison")
-    for col in ("model", "median rel. error", 'mean Eucl. error ("RMSE") deg/s', "RMSE deg/s"):
-        table.add_column(col)
-    for name, m in models.items():
-        s = m["metrics"]
-        table.add_row(
-            escape(name),
-            fmt(s["median_relative_error"]),
-            fmt(s["mean_euclidean_error_deg_s"], 1),
-            fmt(s["rmse_deg_s"], 1),
-        )
-    console.print(table)
+    console.print(console_table("comparison", overall_table(models, "")))
     console.print(f"wrote {out}/report.html, report.md, bins.png, comparison.json")

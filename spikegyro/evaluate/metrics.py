@@ -12,8 +12,8 @@ mean). The paper's "relative error" is the median over (window, step) pairs of
 (:func:`median_relative_error`).
 
 Per-window metrics (:func:`window_metrics`) compare *means over 20 ms sub-windows* instead of
-single milliseconds, so a per-ms SNN and an ANN that predicts one mean per 20 ms window compete on the
-ANN's terms too. The sub-windows are ``[j * 20, (j + 1) * 20)`` ms from the window start (the
+single milliseconds, so a per-ms SNN and an ANN that predicts one mean per 20 ms window compete
+on the ANN's terms too. The sub-windows are ``[j * 20, (j + 1) * 20)`` ms from the window start (the
 ANNs' ``target_ms`` windows, see :func:`spikegyro.train.data.encode_target`) that lie wholly in
 the evaluated steps: for 100 ms windows and ``start = 50``, ``[60, 80)`` and ``[80, 100)``.
 """

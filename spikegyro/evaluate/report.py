@@ -10,31 +10,78 @@ from __future__ import annotations
 import base64
 import html
 import os
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from spikegyro.evaluate.metrics import AXES
+from spikegyro.evaluate.metrics import AXES, EVAL_START_STEP, MIN_SPEED_DEG_S, WINDOW_METRIC_MS
 from spikegyro.events.io import atomic_path
 
 PAPER_RESULTS: dict[str, dict[str, float]] = {
     "Mean": {"median_relative_error": 1.00, "mean_euclidean_error_deg_s": 226.9},
     "SNN-6": {"median_relative_error": 0.26, "mean_euclidean_error_deg_s": 66.3},
-    "ANN-6": {"median_relative_error": 0.22, "mean_euclidean_error_deg_s": 59.0},
-    "ResNet-50 (A)": {"median_relative_error": 0.22, "mean_euclidean_error_deg_s": 66.8},
-    "ResNet-50 (V)": {"median_relative_error": 0.15, "mean_euclidean_error_deg_s": 36.8},
+    "ANN-6 (voxel)": {"median_relative_error": 0.22, "mean_euclidean_error_deg_s": 59.0},
+    "ResNet-50 (accumulated frames)": {
+        "median_relative_error": 0.22,
+        "mean_euclidean_error_deg_s": 66.8,
+    },
+    "ResNet-50 (voxel)": {"median_relative_error": 0.15, "mean_euclidean_error_deg_s": 36.8},
 }
-"""Gehrig et al. 2020, Table I (test set): median relative error and mean Euclidean error
-(their "RMSE"), deg/s. ANN-6 and ResNet-50 (V) take voxel grids, ResNet-50 (A) accumulated
-frames."""
+"""Gehrig et al. 2020, Table I (test set), by row: median relative error and mean Euclidean
+error (their "RMSE"), deg/s."""
+
+PAPER_ROW_OF_MODEL: dict[tuple[str, str], str] = {
+    ("snn6", "spikes"): "SNN-6",
+    ("ann6", "voxel"): "ANN-6 (voxel)",
+    ("resnet50", "frames"): "ResNet-50 (accumulated frames)",
+    ("resnet50", "voxel"): "ResNet-50 (voxel)",
+}
+"""(registry name, input representation) -> the paper's row; other pairs have no paper number."""
+
+_REPRESENTATION_TAGS = {
+    "e": "spikes", "spikes": "spikes", "events": "spikes",
+    "v": "voxel", "voxel": "voxel", "voxels": "voxel", "voxelgrid": "voxel",
+    "a": "frames", "frames": "frames", "accumulatedframes": "frames", "accumulated": "frames",
+}  # fmt: skip
+_DEFAULT_REPRESENTATION = {"snn6": "spikes", "ann6": "voxel"}
 
 
-def paper_result(name: str) -> dict[str, float] | None:
-    """The paper's numbers for model ``name``; the official SNN-6 checkpoint maps to SNN-6 and a
-    run tag (``SNN-6 [run2]``) is ignored."""
-    base = name.split(" [", 1)[0]
-    return PAPER_RESULTS.get(base) or PAPER_RESULTS.get(base.removesuffix(" (official)"))
+def paper_row(result: Mapping[str, Any]) -> str | None:
+    """The row of the paper's Table I that a model's results (a ``metrics.json`` model entry)
+    compare with, or None.
+
+    Decided by the checkpoint's registry name (``checkpoint_model``) and input representation
+    (``input.representation``), or ``method == "mean"`` for the mean predictor; other methods
+    (CMax) have none. Only entries written before those keys existed fall back to the display
+    name (:func:`paper_row_from_name`).
+    """
+    arch = result.get("checkpoint_model")
+    if arch is not None:
+        representation = (result.get("input") or {}).get("representation", "")
+        return PAPER_ROW_OF_MODEL.get((arch, representation))
+    if "method" in result:
+        return "Mean" if result["method"] == "mean" else None
+    return paper_row_from_name(str(result.get("name", "")))
+
+
+def paper_row_from_name(name: str) -> str | None:
+    """The paper's row for a display name such as ``ANN-6 (V)``, ``ResNet-50 (voxel)`` or
+    ``SNN-6 (official) [run2]``; None when there is none or the name is ambiguous (``ResNet-50``
+    without its input). Case, spaces and dashes do not matter; ``(official)`` and a run tag in
+    brackets are ignored.
+    """
+    text = name.split("[", 1)[0].lower()
+    tags = {re.sub(r"[^a-z0-9]", "", t) for t in re.findall(r"\(([^)]*)\)", text)} - {"official"}
+    base = re.sub(r"[^a-z0-9]", "", re.sub(r"\([^)]*\)", "", text))
+    if base == "mean":
+        return None if tags else "Mean"
+    reps = {_REPRESENTATION_TAGS.get(t) for t in tags}
+    if len(reps) > 1 or None in reps:
+        return None
+    representation = reps.pop() if reps else _DEFAULT_REPRESENTATION.get(base, "")
+    return PAPER_ROW_OF_MODEL.get((base, representation))
 
 
 @dataclass(frozen=True)
@@ -145,23 +192,40 @@ def _md_cell(text: str) -> str:
     return text.replace("|", "\\|")
 
 
-def overall_table(models: Mapping[str, Mapping[str, Any]], caption: str) -> Table:
-    """One row per model: our overall metrics, then the paper's two numbers where it has them.
+PER_MS_LABEL = f"per ms (steps ≥ {EVAL_START_STEP})"
+PER_WINDOW_LABEL = f"per {WINDOW_METRIC_MS} ms window (mean prediction vs mean truth)"
 
-    ``models`` maps display name -> the dict of :func:`spikegyro.evaluate.metrics.summary`.
+
+def overall_table(models: Mapping[str, Mapping[str, Any]], caption: str) -> Table:
+    """One row per model: our per-ms and per-window metrics, then the paper's numbers.
+
+    ``models`` maps display name -> a ``metrics.json`` model entry: ``metrics`` (from
+    :func:`spikegyro.evaluate.metrics.summary`), optionally ``window_metrics`` (from
+    :func:`spikegyro.evaluate.metrics.window_metrics`; ``-`` where missing) and what
+    :func:`paper_row` reads. The caption is extended with what the two metric groups mean.
     """
     header = [
         "model",
-        "median rel. error",
-        'mean Eucl. error (paper "RMSE") [deg/s]',
-        "RMSE [deg/s]",
-        "steps",
+        f"{PER_MS_LABEL}: median rel. error",
+        f'{PER_MS_LABEL}: mean Eucl. error (paper "RMSE") [deg/s]',
+        f"{PER_MS_LABEL}: RMSE [deg/s]",
+        f"{PER_MS_LABEL}: steps",
+        f"{PER_WINDOW_LABEL}: median rel. error",
+        f"{PER_WINDOW_LABEL}: mean Eucl. error [deg/s]",
+        f"{PER_WINDOW_LABEL}: RMSE [deg/s]",
+        f"{PER_WINDOW_LABEL}: windows",
+        "paper row (Table I)",
         "paper: median rel. error",
         'paper: "RMSE" [deg/s]',
     ]
     rows = []
-    for name, m in models.items():
-        paper = paper_result(name) or {}
+    sub_windows: list[list[int]] = []
+    for name, result in models.items():
+        m = result["metrics"]
+        w = result.get("window_metrics") or {}
+        sub_windows = sub_windows or w.get("sub_windows_ms", [])
+        row = paper_row(result)
+        paper = PAPER_RESULTS.get(row, {}) if row else {}
         rows.append(
             [
                 name,
@@ -169,10 +233,24 @@ def overall_table(models: Mapping[str, Mapping[str, Any]], caption: str) -> Tabl
                 fmt(m["mean_euclidean_error_deg_s"], 1),
                 fmt(m["rmse_deg_s"], 1),
                 fmt(m["n_pairs"]),
+                fmt(w.get("median_relative_error")),
+                fmt(w.get("mean_euclidean_error_deg_s"), 1),
+                fmt(w.get("rmse_deg_s"), 1),
+                fmt(w.get("n_windows")),
+                row or "-",
                 fmt(paper.get("median_relative_error"), 2),
                 fmt(paper.get("mean_euclidean_error_deg_s"), 1),
             ]
         )
+    spans = " and ".join(f"[{a}, {b}) ms" for a, b in sub_windows) or "none"
+    caption = (
+        f"{caption}. {PER_MS_LABEL}: every millisecond from {EVAL_START_STEP} ms on, ANN "
+        f"predictions held over their window. {PER_WINDOW_LABEL}: the {WINDOW_METRIC_MS} ms "
+        "windows counted from the window start (as the ANNs') that lie wholly in the evaluated "
+        f"steps ({spans}), one error per window between the mean prediction and the mean ground "
+        "truth (relative errors leave out windows whose mean true speed is under "
+        f"{MIN_SPEED_DEG_S:g} deg/s, as per ms)."
+    )
     return Table(caption, header, rows)
 
 
