@@ -192,12 +192,23 @@ def test_ddp_two_processes_match_single_process(dataset, tmp_path):
     angular_velocity_loss(net(x), y, single.loss_start_step).backward()
     ddp = torch.load(tmp_path / "ddp" / "ddp_grads.pt", weights_only=False)
     assert ddp["indices"] == idx[: len(idx) // 2]  # rank 0 took the first half
+    # Norm-wise comparisons: batch size changes float rounding, and a membrane potential within
+    # rounding of the threshold may flip one spike, which moves a few gradient entries slightly.
     for name, p in net.named_parameters():
         assert p.grad.abs().max() > 0, name
-        scale = float(p.grad.abs().max())
-        torch.testing.assert_close(ddp["grads"][name], p.grad, rtol=1e-4, atol=1e-5 * scale)
+        assert relative_difference(ddp["grads"][name], p.grad) < 1e-3, name
     train(single, progress=False)
-    assert_same_weights(tmp_path / "ddp" / "last.pt", tmp_path / "single" / "last.pt", atol=1e-5)
+    torch.manual_seed(single.seed)
+    init = build_model(single.model, **model_kwargs_of(single, spec)).state_dict()
+    a, b = state_of(tmp_path / "ddp" / "last.pt"), state_of(tmp_path / "single" / "last.pt")
+    for name in init:
+        if name.endswith("weight"):
+            moved = (b[name] - init[name]).norm()
+            assert moved > 0 and (a[name] - b[name]).norm() < 1e-2 * moved, name
+
+
+def relative_difference(a: torch.Tensor, b: torch.Tensor) -> float:
+    return float((a - b).norm() / b.norm())
 
 
 # ------------------------------------------------------------------------------ the CLI
