@@ -140,21 +140,9 @@ class InputSpec:
         return out
 
     @property
-    def input_size(self) -> tuple[int, int]:
-        """(width, height) of the network input after scaling, pixels."""
-        return max(1, round(self.sensor[0] * self.scale)), max(
-            1, round(self.sensor[1] * self.scale)
-        )
-
-    @property
     def in_channels(self) -> int:
         """Input planes of an ANN for this representation."""
         return {"spikes": 2, "voxel": self.num_bins, "frames": 2}[self.representation]
-
-    @property
-    def num_targets(self) -> int:
-        """Outputs per window: T steps, or S sub-window means."""
-        return self.window_ms if self.output == "per_step" else self.window_ms // self.target_ms
 
 
 def as_input_spec(spec: InputSpec | dict[str, Any]) -> InputSpec:
@@ -337,7 +325,7 @@ class FileSource:
 
 @dataclass(frozen=True)
 class OnlineSource:
-    """Windows from sequences simulated on the fly: sample ``i`` is sequence ``offset + i``.
+    """Windows from sequences simulated on the fly: sample ``i`` comes from sequence ``i``.
 
     ``simulate(index) -> Recording`` must be a picklable callable (DataLoader workers call it);
     nothing touches the disk, so the data are unlimited.
@@ -345,12 +333,10 @@ class OnlineSource:
 
     simulate: Callable[[int], Recording]
     window_ms: int
-    offset: int = 0
 
     def draw(self, rng: np.random.Generator, index: int) -> Window:
-        rec = self.simulate(self.offset + index)
-        return random_window(rec, self.window_ms, rng, source=f"online:{self.offset + index}",
-                             index=index)  # fmt: skip
+        rec = self.simulate(index)
+        return random_window(rec, self.window_ms, rng, source=f"online:{index}", index=index)
 
 
 Augment = Callable[[Window, np.random.Generator], Window]
@@ -392,21 +378,6 @@ class TrainingSamples(Dataset):
     def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
         window = self.window(index)
         return encode_window(window, self.spec), encode_target(window, self.spec)
-
-
-class WindowList(Dataset):
-    """Fixed windows (validation/test) as (input, target) pairs."""
-
-    def __init__(self, windows: list[Window], input_spec: InputSpec | dict[str, Any]) -> None:
-        self.windows = windows
-        self.spec = as_input_spec(input_spec)
-
-    def __len__(self) -> int:
-        return len(self.windows)
-
-    def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
-        w = self.windows[index]
-        return encode_window(w, self.spec), encode_target(w, self.spec)
 
 
 def model_batch(
