@@ -144,9 +144,15 @@ PRESETS: dict[str, dict[str, Any]] = {
     # batch by 3.6; at 1e-4 it falls steadily), so the paper's constant 1e-4 stays; the short
     # budget is spent on more, smaller steps of shorter windows instead. The time budget, not the
     # iteration count, ends the run on a slow machine. ANNs learn faster with --lr 1e-3.
+    # Training windows must still reach the network's steady state: fed spikes from step 0,
+    # SNN-6's layer 5 starts firing at ~10 ms and its τs = 8 readout is at ~50 % of its final
+    # value at 20 ms and ~95 % at 45 ms, while validation scores steps 50-99 of 100 ms windows.
+    # A loss from step 20 of 40 ms windows taught the ramp, not the steady state (val 1.09-1.26),
+    # so the loss covers steps 45-59 of 60 ms windows.
     "cpu": {
         "scale": 0.5,
-        "train_window_ms": 40,
+        "train_window_ms": 60,
+        "train_loss_start_step": 45,
         "batch_size": 4,
         "lr": 1e-4,
         "grad_clip": 1.0,
