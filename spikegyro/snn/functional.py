@@ -204,12 +204,17 @@ class _SpikeFunction(torch.autograd.Function):
         if in_place:
             ctx.mark_dirty(rows)
         ctx.mark_non_differentiable(potential)
+        ctx.set_materialize_grads(False)  # no zero-filled gradient for the potential output
         ctx.save_for_backward(potential)
         ctx.constants = (theta, scale_rho, tau_rho)
         return spikes, potential
 
     @staticmethod
-    def backward(ctx, grad: torch.Tensor, _: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
+    def backward(
+        ctx, grad: torch.Tensor | None, _: torch.Tensor | None
+    ) -> tuple[torch.Tensor | None, ...]:
+        if grad is None:
+            return (None,) * 6
         (potential,) = ctx.saved_tensors
         rho = surrogate_gradient(potential, *ctx.constants).mul_(grad)
         return rho, None, None, None, None, None
