@@ -124,8 +124,8 @@ def test_checkpoint_of_another_resolution_is_refused(dataset, tmp_path):
 
 
 def test_bad_arguments_are_refused(dataset, checkpoint, tmp_path):
-    with pytest.raises(InputError, match="exactly one"):
-        run_evaluation(dataset, None, "test", tmp_path)
+    with pytest.raises(InputError, match="not both"):
+        run_evaluation(dataset, checkpoint, "test", tmp_path, model="cmax")
     with pytest.raises(InputError, match="no such checkpoint"):
         run_evaluation(dataset, tmp_path / "missing.pt", "test", tmp_path)
     with pytest.raises(InputError, match="split"):

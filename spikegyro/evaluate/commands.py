@@ -50,7 +50,7 @@ from spikegyro.evaluate.spikes import spike_statistics, spike_table
 from spikegyro.events.io import atomic_path
 from spikegyro.events.plot import plot_events_and_omega
 from spikegyro.models.official import load_official
-from spikegyro.models.registry import CHECKPOINT_FORMAT, load_checkpoint
+from spikegyro.models.registry import CHECKPOINT_FORMAT, PRETRAINED_SNN6, load_checkpoint
 from spikegyro.train.data import InputSpec, Window, fixed_windows
 from spikegyro.train.infer import predict_windows, spec_of
 
@@ -290,8 +290,10 @@ def run_evaluation(
     """
     console = console or Console(stderr=True)
     data_dir, out_dir = Path(data_dir), Path(out_dir)
-    if (checkpoint is None) == (model is None):
-        raise InputError("give either --checkpoint CKPT or --model cmax (exactly one).")
+    if checkpoint is not None and model is not None:
+        raise InputError("give either --checkpoint CKPT or --model cmax, not both.")
+    if checkpoint is None and model is None:
+        checkpoint = PRETRAINED_SNN6
     if model is not None and model not in MODEL_CHOICES:
         raise InputError(f"--model {model}: choose one of {', '.join(MODEL_CHOICES)}.")
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
@@ -459,7 +461,10 @@ def _print_summary(console: Console, result: dict[str, Any], out_dir: Path) -> N
 def evaluate(
     data: Path = typer.Option(..., "--data", help="Dataset folder (DIR/{train,val,test}/*.h5)."),
     checkpoint: Path = typer.Option(
-        None, "--checkpoint", help="spikegyro checkpoint or the paper's official weights."
+        None,
+        "--checkpoint",
+        help="spikegyro checkpoint or the paper's official weights (default: the shipped "
+        "pretrained SNN-6).",
     ),
     model: str = typer.Option(
         None, "--model", help="A non-learned method instead of a checkpoint: cmax."

@@ -32,6 +32,9 @@ from spikegyro.errors import InputError
 
 CHECKPOINT_FORMAT = "spikegyro-checkpoint/1"
 
+PRETRAINED_SNN6 = Path(__file__).resolve().parents[1] / "data" / "pretrained" / "snn6.pt"
+"""The shipped pretrained SNN-6 (see README); the default model of ``predict`` and ``evaluate``."""
+
 _REGISTRY: dict[str, Callable[..., nn.Module]] = {}
 
 

@@ -10,11 +10,11 @@ import numpy as np
 from torch import nn
 
 from spikegyro.errors import InputError
-from spikegyro.models.registry import load_checkpoint
+from spikegyro.models.registry import PRETRAINED_SNN6, load_checkpoint
 from spikegyro.snn.layers import GASP, SRMConv, SRMDense
 from spikegyro.stream.stateful import SNNSpec, SRMLayerSpec, StreamingSNN
 
-DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "pretrained" / "snn6.pt"
+DEFAULT_CHECKPOINT = PRETRAINED_SNN6
 """The shipped pretrained SNN-6 (``spikegyro/data/pretrained/snn6.pt``)."""
 
 
