@@ -7,7 +7,9 @@ output folder:
 - ``data/``: the simulated dataset (kept: a second run reuses it),
 - ``run/``: the training run (config.json, log.csv, loss.png, best.pt, last.pt),
 - ``evaluation/``: metrics.json, figures, report.html, report.md,
-- ``summary.json``: the headline numbers and the time each stage took.
+- ``evaluation-pretrained/``: the shipped pretrained SNN-6 scored on the same test split,
+- ``summary.json``: the headline numbers and the time each stage took (timings exclude the
+  extra evaluation of the pretrained model).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from rich.table import Table
 
 from spikegyro.evaluate.commands import run_evaluation
 from spikegyro.events.io import atomic_path
+from spikegyro.models.registry import PRETRAINED_SNN6
 from spikegyro.sim.commands import simulate_with_progress
 from spikegyro.sim.dataset import SimConfig
 from spikegyro.train.loop import train
@@ -94,6 +97,12 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
     evaluation = run_evaluation(data_dir, run_dir / "best.pt", "test", eval_dir, console=console)
     timings["evaluate_s"] = time.perf_counter() - clock - timings["simulate_s"] - timings["train_s"]
     timings["total_s"] = time.perf_counter() - clock
+    pretrained = None
+    if PRETRAINED_SNN6.exists():
+        console.rule("extra: the shipped pretrained SNN-6 on the same test split")
+        pretrained = run_evaluation(
+            data_dir, PRETRAINED_SNN6, "test", out / "evaluation-pretrained", console=console
+        )["model"]["metrics"]
 
     summary = {
         "config": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(config).items()},
@@ -101,6 +110,7 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
         "timings": timings,
         "snn": evaluation["model"]["metrics"],
         "mean_predictor": evaluation["mean"]["metrics"],
+        "pretrained_snn": pretrained,
         "targets": {
             "minutes": TARGET_MINUTES,
             "median_relative_error": TARGET_MEDIAN_REL,
@@ -118,8 +128,11 @@ def _print_summary(console: Console, summary: dict[str, Any], eval_dir: Path) ->
     table.add_column("median relative error", justify="right")
     table.add_column("mean Euclidean error", justify="right")
     table.add_column("RMSE", justify="right")
+    rows = [("SNN-6 (trained by this demo)", summary["snn"])]
+    if summary["pretrained_snn"] is not None:
+        rows.append(("SNN-6 (shipped pretrained)", summary["pretrained_snn"]))
     for name, m in (
-        ("SNN-6 (this demo)", summary["snn"]),
+        *rows,
         ("mean predictor", summary["mean_predictor"]),
     ):
         table.add_row(
