@@ -42,6 +42,7 @@ from spikegyro.evaluate.report import (
     Table,
     axis_table,
     bin_table,
+    fmt,
     overall_table,
     paper_row,
     write_report,
@@ -450,9 +451,21 @@ def console_table(title: str, table: Table) -> RichTable:
 
 
 def _print_summary(console: Console, result: dict[str, Any], out_dir: Path) -> None:
-    models = {result["model"]["name"]: result["model"], "Mean": result["mean"]}
-    title = f"{result['data']['dir']} / {result['data']['split']}"
-    console.print(console_table(title, overall_table(models, "")))
+    # The full table (report.md/html) has 12 columns; a terminal gets the headline ones.
+    table = RichTable(title=escape(f"{result['data']['dir']} / {result['data']['split']}"))
+    for col in ("model", "median rel. err.", "mean Eucl. err.", "RMSE", "20 ms: median rel."):
+        table.add_column(col, justify="left" if col == "model" else "right")
+    for entry in (result["model"], result["mean"]):
+        m, w = entry["metrics"], entry.get("window_metrics") or {}
+        table.add_row(
+            escape(entry["name"]),
+            fmt(m["median_relative_error"]),
+            f"{fmt(m['mean_euclidean_error_deg_s'], 1)} deg/s",
+            f"{fmt(m['rmse_deg_s'], 1)} deg/s",
+            fmt(w.get("median_relative_error")),
+        )
+    console.print(table)
+    console.print('per ms over steps >= 50; mean Eucl. err. is the paper\'s "RMSE"')
     for w in result["warnings"]:
         console.print(f"[yellow]warning:[/] {escape(w)}")
     console.print(f"wrote {out_dir}/metrics.json, predictions.npz, report.html, report.md")
