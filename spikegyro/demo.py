@@ -50,10 +50,10 @@ class DemoConfig:
     """
 
     out: Path = Path("demo-output")
-    sequences: int = 96
+    sequences: int = 160
     val_fraction: float = 0.08
     test_fraction: float = 0.12
-    train_minutes: float = 9.0
+    train_minutes: float = 10.0
     seed: int = 0
     workers: int = 2
 

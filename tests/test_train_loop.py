@@ -229,7 +229,7 @@ def test_cli_trains_overrides_options_and_resumes(dataset, tmp_path):
     saved = json.loads((out / "config.json").read_text())
     assert saved["preset"] == "cpu" and saved["batch_size"] == 2 and saved["scale"] == 1.0
     assert saved["train_window_ms"] == 60 and saved["train_loss_start_step"] == 45  # preset
-    assert saved["max_minutes"] == 9.0
+    assert saved["max_minutes"] == 10.0
     again = runner.invoke(app, args)
     assert again.exit_code != 0 and "already holds a run" in str(again.exception)
     more = ["train", "--resume", "--out", str(out), "--iterations", "4"]
