@@ -12,15 +12,7 @@ from spikegyro.models.official import load_official
 from spikegyro.models.registry import build_model, load_checkpoint, save_checkpoint
 from spikegyro.models.snn6 import SNN6, SNN6_LAYERS
 
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # Small tensors: with 2 OpenMP threads on a busy shared machine every op waits for a
-    # descheduled worker (measured 30x slower); one thread keeps these tests fast and stable.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _spikes(shape, density, seed=0):

@@ -12,14 +12,7 @@ from spikegyro.snn.layers import GASP, SRMConv, SRMDense, SRMParams
 PARAMS = SRMParams(tau_s=2.0, theta=0.27, tau_r=1.0, scale_rho=0.2)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # Small tensors: with 2 OpenMP threads on a busy shared machine every op waits for a
-    # descheduled worker (measured 30x slower); one thread keeps these tests fast and stable.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def test_srm_conv_equals_official_order_spike_of_conv_of_psp():

@@ -13,7 +13,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from spikegyro.baselines.cmax import CMaxConfig, camera_from_attrs, hold_per_ms, predict_stream
 from spikegyro.errors import InputError
-from spikegyro.events.calib import Calibration, load_calibration
+from spikegyro.events.calib import resolve_calibration
 from spikegyro.events.io import read_gyro, read_recording
 from spikegyro.stream.predict import WARMUP_STEPS, ErrorStats, event_mapper, model_camera
 from spikegyro.stream.writer import check_prediction_path, write_predictions
@@ -64,18 +64,13 @@ def cmax_command(
     """
     # Without --calib/--intrinsics: the file's fx, fy, cx, cy attributes, else the simulator's
     # pinhole. The span is read into memory (CMax runs slower than real time anyway).
-    if calib is not None and intrinsics is not None:
-        raise InputError("--calib and --intrinsics: give one of them, not both.")
     if end is not None and end <= start:
         raise InputError(f"--end {end} s must be after --start {start} s.")
     check_prediction_path(out)
     console = Console(stderr=True)
-    if calib is None and intrinsics is None and (events / "calib.txt").is_file():
-        calib = events / "calib.txt"
-        console.print(f"using the calibration {calib}")
-    calibration = load_calibration(calib) if calib is not None else None
-    if intrinsics is not None:
-        calibration = Calibration(*intrinsics)
+    calibration, calib_file = resolve_calibration(events, calib, intrinsics)
+    if calib_file is not None:
+        console.print(f"using the calibration {calib_file}")
     rec = read_recording(events, sensor=(width, height) if width and height else None)
     if not len(rec.events):
         raise InputError(f"{events}: the file holds no events.")

@@ -201,3 +201,25 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
     if calib.fx <= 0 or calib.fy <= 0:
         raise InputError(f"{path}: focal lengths must be positive, got {calib.fx}, {calib.fy}.")
     return calib
+
+
+def resolve_calibration(
+    events: str | os.PathLike,
+    calib: str | os.PathLike | None = None,
+    intrinsics: tuple[float, float, float, float] | None = None,
+) -> tuple[Calibration | None, Path | None]:
+    """The sensor calibration the command-line options ask for, as (calibration, file read).
+
+    ``--calib FILE`` and ``--intrinsics fx fy cx cy`` exclude each other; with neither, an Event
+    Camera Dataset folder's own ``calib.txt`` is used; otherwise (None, None): the events are
+    taken as already on the model's pinhole.
+    """
+    if calib is not None and intrinsics is not None:
+        raise InputError("--calib and --intrinsics: give one of them, not both.")
+    if intrinsics is not None:
+        return Calibration(*intrinsics), None
+    if calib is None and (Path(events) / "calib.txt").is_file():
+        calib = Path(events) / "calib.txt"
+    if calib is None:
+        return None, None
+    return load_calibration(calib), Path(calib)

@@ -8,8 +8,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from spikegyro.errors import InputError
-from spikegyro.events.calib import Calibration, load_calibration
+from spikegyro.events.calib import resolve_calibration
 from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_streaming_model
 from spikegyro.stream.predict import WARMUP_STEPS, predict_stream, read_time_span
 from spikegyro.stream.writer import check_prediction_path
@@ -48,16 +47,11 @@ def predict(
     height: int = typer.Option(None, help="Sensor height, pixels (text files default to 180)."),
 ) -> None:
     """Predict ω = (ω_x, ω_y, ω_z) in rad/s every 1 ms, streaming, with a real-time-factor bar."""
-    if calib is not None and intrinsics is not None:
-        raise InputError("--calib and --intrinsics: give one of them, not both.")
     check_prediction_path(out)
     console = Console(stderr=True)
-    if calib is None and intrinsics is None and (events / "calib.txt").is_file():
-        calib = events / "calib.txt"  # an Event Camera Dataset folder ships its calibration
-        console.print(f"using the calibration {calib}")
-    calibration = load_calibration(calib) if calib is not None else None
-    if intrinsics is not None:
-        calibration = Calibration(*intrinsics)
+    calibration, calib_file = resolve_calibration(events, calib, intrinsics)
+    if calib_file is not None:
+        console.print(f"using the calibration {calib_file}")
     sensor = (width, height) if width and height else None
     engine, payload = load_streaming_model(checkpoint or DEFAULT_CHECKPOINT)
     span = read_time_span(events)
