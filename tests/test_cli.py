@@ -1,0 +1,26 @@
+"""The command line's error contract: one line on stderr and a non-zero exit, no traceback."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+
+def _run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "spikegyro", *args], capture_output=True, text=True, timeout=120
+    )
+
+
+def test_unknown_option_is_a_usage_error_not_a_traceback() -> None:
+    res = _run("info", "--no-such-option")
+    assert res.returncode == 2
+    assert "Traceback" not in res.stderr
+    assert "No such option: --no-such-option" in res.stderr
+
+
+def test_missing_input_file_is_one_line_and_exit_2(tmp_path) -> None:
+    res = _run("info", str(tmp_path / "missing.h5"))
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error:") and "missing.h5" in lines[0]
