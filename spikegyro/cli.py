@@ -7,19 +7,19 @@ turns :class:`~spikegyro.errors.InputError` into one line on stderr and exit cod
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import typer
 
 from spikegyro import __version__
 from spikegyro.baselines import commands as baselines_commands
-from spikegyro.demo import DemoConfig, run_demo
+from spikegyro.demo import demo_command
 from spikegyro.errors import InputError
 from spikegyro.evaluate import commands as evaluate_commands
 from spikegyro.events import commands as events_commands
 from spikegyro.sim import commands as sim_commands
 from spikegyro.stream import commands as stream_commands
 from spikegyro.train import commands as train_commands
+from spikegyro.train.relay import relay_log_command
 
 app = typer.Typer(
     name="spikegyro",
@@ -46,25 +46,14 @@ def _root(
 app.command("info")(events_commands.info)
 
 
-@app.command("demo")
-def demo(
-    out: Path = typer.Option(Path("demo-output"), "--out", help="Output folder."),
-    sequences: int = typer.Option(DemoConfig.sequences, min=10, help="Simulated sequences."),
-    train_minutes: float = typer.Option(
-        DemoConfig.train_minutes, min=0.1, help="Training time budget, minutes."
-    ),
-    seed: int = typer.Option(DemoConfig.seed, help="Seed of the dataset and the training run."),
-) -> None:
-    """Simulate a dataset, train SNN-6 on the CPU, evaluate it, and print a summary."""
-    run_demo(DemoConfig(out=out, sequences=sequences, train_minutes=train_minutes, seed=seed))
-
-
+app.command("demo")(demo_command)
 app.command("simulate")(sim_commands.simulate_dataset)
 app.command("export-official")(sim_commands.export_official_command)
 app.command("show")(sim_commands.show)
 app.command("evaluate")(evaluate_commands.evaluate)
 app.command("report")(evaluate_commands.report)
 app.command("train")(train_commands.train_command)
+app.command("relay-log")(relay_log_command)
 app.command("predict")(stream_commands.predict)
 app.add_typer(baselines_commands.app, name="baseline")
 

@@ -35,7 +35,7 @@ from torch import nn
 
 from spikegyro.errors import InputError
 from spikegyro.models.registry import register
-from spikegyro.snn.layers import GASP, SRMConv, SRMDense, SRMParams
+from spikegyro.snn.layers import GASP, RegionPool, SRMConv, SRMDense, SRMParams
 
 
 @dataclass(frozen=True)
@@ -75,11 +75,19 @@ class SNN6(nn.Module):
     Args:
         in_channels: input polarity channels (2).
         init_gain: weight init scale, uniform in ±init_gain/√fan_in per layer.
+        readout_grid: (rows, columns) of the spike pooling before the dense readout; (1, 1) is
+            the paper's global average spike pooling (GASP).
     """
 
-    def __init__(self, in_channels: int = 2, init_gain: float = INIT_GAIN) -> None:
+    def __init__(
+        self,
+        in_channels: int = 2,
+        init_gain: float = INIT_GAIN,
+        readout_grid: tuple[int, int] = (1, 1),
+    ) -> None:
         super().__init__()
         self.in_channels = in_channels
+        self.readout_grid = (int(readout_grid[0]), int(readout_grid[1]))
         channels = in_channels
         convs = []
         for i, spec in enumerate(SNN6_LAYERS):
@@ -97,8 +105,9 @@ class SNN6(nn.Module):
             channels = spec.out_channels
         # Named conv1 … conv5 and fc, as in the official state dict.
         self.conv1, self.conv2, self.conv3, self.conv4, self.conv5 = convs
-        self.pool = GASP()
-        self.fc = SRMDense(channels, 3, READOUT)
+        cells = self.readout_grid[0] * self.readout_grid[1]
+        self.pool = GASP() if cells == 1 else RegionPool(self.readout_grid)
+        self.fc = SRMDense(channels * cells, 3, READOUT)
         self.reset_parameters(init_gain)
 
     @property
@@ -154,3 +163,33 @@ class SNN6(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """ω (N, 3, T) in rad/s from input spikes (N, 2, H, W, T)."""
         return self._run(x, keep_spikes=False)[0]
+
+
+@register("snn6-grid")
+def snn6_grid(
+    in_channels: int = 2, init_gain: float = INIT_GAIN, grid: tuple[int, int] = (2, 3)
+) -> SNN6:
+    """SNN-6 whose readout pools layer 5 per cell of a coarse grid instead of globally.
+
+    A test of the hypothesis in DESIGN.md ("Why roll is hard"): GASP hides where a feature
+    fired, and roll's flow field depends on position. At 240x180, layer 5 is 12x8, so the
+    default 2x3 grid has cells of 4x4 neurons.
+    """
+    return SNN6(in_channels, init_gain, readout_grid=grid)
+
+
+def grid_from_global(model: SNN6, grid: tuple[int, int]) -> SNN6:
+    """An ``snn6-grid`` network that computes exactly what the GASP network ``model`` does.
+
+    The conv weights are copied; each cell's readout weights are the global ones divided by the
+    number of cells, so when the cells are equal in size (a grid dividing the layer-5 map) the
+    sum over cells is the global mean. The start point for fine-tuning the grid readout.
+    """
+    if model.readout_grid != (1, 1):
+        raise InputError(f"grid_from_global: the model already pools on {model.readout_grid}.")
+    out = snn6_grid(model.in_channels, grid=grid)
+    state = model.state_dict()
+    cells = grid[0] * grid[1]
+    state["fc.weight"] = state["fc.weight"].repeat_interleave(cells, dim=1) / cells
+    out.load_state_dict(state)
+    return out

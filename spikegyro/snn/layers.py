@@ -149,3 +149,24 @@ class GASP(nn.Module):
 
     def forward(self, spikes: torch.Tensor) -> torch.Tensor:
         return spikes.mean(dim=(2, 3))
+
+
+class RegionPool(nn.Module):
+    """Average spike pooling per cell of a coarse grid: (N, C, H, W, T) → (N, C·gh·gw, T).
+
+    Feature ``c·gh·gw + i·gw + j`` is channel c's mean over grid cell (i, j) (rows top to
+    bottom, columns left to right; cells as :func:`torch.nn.functional.adaptive_avg_pool2d`
+    cuts them). A (1, 1) grid is :class:`GASP`. Unlike GASP, the readout then knows roughly
+    *where* a feature fired, which rotation about the optical axis (roll) needs: its flow turns
+    with the position in the image.
+    """
+
+    def __init__(self, grid: tuple[int, int]) -> None:
+        super().__init__()
+        self.grid = (int(grid[0]), int(grid[1]))
+
+    def forward(self, spikes: torch.Tensor) -> torch.Tensor:
+        n, c, h, w, t = spikes.shape
+        frames = spikes.permute(0, 1, 4, 2, 3).reshape(n, c * t, h, w)
+        cells = nn.functional.adaptive_avg_pool2d(frames, self.grid)
+        return cells.reshape(n, c, t, -1).permute(0, 1, 3, 2).reshape(n, -1, t)

@@ -1,0 +1,159 @@
+"""The relay log: one training run continued over many short GPU sessions.
+
+A relay folder (``relay/snn6/`` in the repository) holds the run's resume state (``last.pt``,
+``resume.pt``, ``config.json``, ``log.csv``) and ``relay_log.csv``: every segment's log rows
+joined, with a ``segment`` column, steps and elapsed seconds counted from the relay's start.
+``relay.json`` keeps the offsets between the run's own counters and the relay's (the run's
+``log.csv`` may count from a later start than the relay) and one entry per segment.
+
+After a GPU segment, ``append_segment`` folds the new rows of the run's ``log.csv`` into the
+relay and ``plot_relay`` redraws the curve; ``spikegyro relay-log RUN --relay DIR`` does both
+and copies the resume state.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from spikegyro.errors import InputError
+from spikegyro.events.io import atomic_path
+
+RELAY_FIELDS = (
+    "segment",
+    "step",
+    "loss",
+    "lr",
+    "val_loss",
+    "val_median_rel",
+    "val_mean_err_deg",
+    "elapsed_s",
+    "samples_per_s",
+)
+STATE_FILES = ("last.pt", "resume.pt", "config.json", "log.csv")
+
+
+@dataclass
+class RelayState:
+    """``relay.json``: relay step = run step + ``step_offset``; likewise for elapsed seconds.
+
+    ``last_run_step`` is the run step of the newest row already in the relay.
+    """
+
+    step_offset: int = 0
+    elapsed_offset_s: float = 0.0
+    last_run_step: int = 0
+    segments: list[dict[str, Any]] = field(default_factory=list)
+
+
+def _read_csv(path: Path) -> list[dict[str, str]]:
+    if not path.exists():
+        raise InputError(f"{path}: no such log file.")
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def read_state(relay_dir: str | Path) -> RelayState:
+    """The relay's offsets and segments (an empty relay when ``relay.json`` is absent)."""
+    path = Path(relay_dir) / "relay.json"
+    if not path.exists():
+        return RelayState()
+    return RelayState(**json.loads(path.read_text()))
+
+
+def append_segment(run_dir: str | Path, relay_dir: str | Path, note: str = "") -> dict[str, Any]:
+    """Append the rows of ``run_dir/log.csv`` newer than the relay's to ``relay_log.csv``.
+
+    Steps and elapsed seconds are shifted onto the relay's clock. Returns the new segment's
+    entry (also recorded in ``relay.json``): its number, first and last relay step, GPU seconds.
+    """
+    run_dir, relay_dir = Path(run_dir), Path(relay_dir)
+    state = read_state(relay_dir)
+    rows = [r for r in _read_csv(run_dir / "log.csv") if int(r["step"]) > state.last_run_step]
+    if not rows:
+        raise InputError(f"{run_dir / 'log.csv'}: no rows after run step {state.last_run_step}.")
+    relay_csv = relay_dir / "relay_log.csv"
+    old = _read_csv(relay_csv) if relay_csv.exists() else []
+    segment = 1 + max((int(r["segment"]) for r in old), default=0)
+    new = [
+        {
+            **{k: r.get(k, "") for k in RELAY_FIELDS},
+            "segment": str(segment),
+            "step": str(int(r["step"]) + state.step_offset),
+            "elapsed_s": f"{float(r['elapsed_s']) + state.elapsed_offset_s:.1f}",
+        }
+        for r in rows
+    ]
+    first_elapsed = float(old[-1]["elapsed_s"]) if old else 0.0
+    entry = {
+        "segment": segment,
+        "first_step": int(new[0]["step"]),
+        "last_step": int(new[-1]["step"]),
+        "gpu_s": round(float(new[-1]["elapsed_s"]) - first_elapsed, 1),
+        "note": note,
+    }
+    relay_dir.mkdir(parents=True, exist_ok=True)
+    with atomic_path(relay_csv) as tmp, tmp.open("w", newline="") as f:
+        writer = csv.DictWriter(f, RELAY_FIELDS)
+        writer.writeheader()
+        writer.writerows([*old, *new])
+    state.last_run_step = int(rows[-1]["step"])
+    state.segments.append(entry)
+    with atomic_path(relay_dir / "relay.json") as tmp:
+        tmp.write_text(json.dumps(asdict(state), indent=2) + "\n")
+    return entry
+
+
+def plot_relay(relay_csv: str | Path, out_png: str | Path) -> Path:
+    """Training loss and validation median relative error against the relay's step."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = _read_csv(Path(relay_csv))
+    fig, (ax_loss, ax_val) = plt.subplots(1, 2, figsize=(10, 3.6))
+    for seg in sorted({int(r["segment"]) for r in rows}):
+        part = [r for r in rows if int(r["segment"]) == seg]
+        train = [(int(r["step"]), float(r["loss"])) for r in part if r["loss"]]
+        ax_loss.plot(*zip(*train, strict=True), lw=0.8, color=f"C{seg % 10}")
+        val = [(int(r["step"]), float(r["val_median_rel"])) for r in part if r["val_median_rel"]]
+        if val:
+            ax_val.plot(
+                *zip(*val, strict=True), "o-", ms=3, color=f"C{seg % 10}", label=f"segment {seg}"
+            )
+    ax_loss.set_ylabel("training loss (mean Euclidean error, rad/s)")
+    ax_val.set_ylabel("validation median relative error")
+    for ax in (ax_loss, ax_val):
+        ax.set_xlabel("step")
+        ax.grid(alpha=0.3)
+    ax_val.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    out_png = Path(out_png)
+    with atomic_path(out_png) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return out_png
+
+
+def relay_log_command(
+    run_dir: Path = typer.Argument(..., help="The `spikegyro train` run of the new segment."),
+    relay: Path = typer.Option(Path("relay/snn6"), "--relay", help="Relay folder."),
+    note: str = typer.Option("", "--note", help="What this segment did (data, hardware)."),
+) -> None:
+    """Fold a GPU segment into the relay: its log rows, its resume state and the curve."""
+    entry = append_segment(run_dir, relay, note)
+    for name in STATE_FILES:
+        if (run_dir / name).exists():
+            shutil.copy2(run_dir / name, relay / name)
+    plot_relay(relay / "relay_log.csv", relay / "relay_curve.png")
+    typer.echo(
+        f"segment {entry['segment']}: steps {entry['first_step']:,}-{entry['last_step']:,}, "
+        f"{entry['gpu_s']:.0f} s; wrote {relay}/relay_log.csv, relay.json, relay_curve.png"
+    )
