@@ -3,8 +3,7 @@
 The demo shows the main job on the bundled defaults in a few minutes:
 
 1. simulate a fresh test split from scenes the shipped weights never saw in training (the
-   held-out photograph and new procedural panoramas), plus a few training sequences that give
-   the mean predictor its value;
+   held-out photograph and new procedural panoramas);
 2. evaluate the shipped SNN-6 beside the mean predictor, and contrast maximization (CMax) on the
    same windows, and write one comparison report;
 3. simulate one recording several seconds long whose rotation keeps changing, stream
@@ -54,8 +53,9 @@ class DemoConfig:
     Attributes:
         out: output folder.
         test_sequences: 500 ms test sequences (five 100 ms windows each) scored by every model.
-        train_sequences: training sequences: the mean predictor's value, and the fine-tuning
-            data when ``finetune_minutes`` > 0.
+        train_sequences: training sequences, the fine-tuning data when ``finetune_minutes``
+            > 0. Without them the mean predictor predicts ω = 0, the exact mean of the
+            simulator's zero-mean rotations (a few sequences' sample mean would be a worse one).
         recording_s: length of the streamed recording, seconds.
         recording_accel_deg: angular-acceleration scale of that recording, deg/s² (larger than
             the dataset's, so the rotation visibly changes over a few seconds).
@@ -66,7 +66,7 @@ class DemoConfig:
 
     out: Path = Path("demo-output")
     test_sequences: int = 20
-    train_sequences: int = 4
+    train_sequences: int = 16
     recording_s: float = 4.0
     recording_accel_deg: float = 300.0
     finetune_minutes: float = 0.0
@@ -76,7 +76,7 @@ class DemoConfig:
 
 def _sim_config(config: DemoConfig) -> tuple[int, SimConfig]:
     """Total sequences and split fractions that give exactly the asked-for split sizes."""
-    train = config.train_sequences + (16 if config.finetune_minutes > 0 else 0)
+    train = config.train_sequences if config.finetune_minutes > 0 else 0
     total = train + 1 + config.test_sequences
     return total, SimConfig(val_fraction=1 / total, test_fraction=config.test_sequences / total)
 
