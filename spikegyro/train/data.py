@@ -34,8 +34,8 @@ import torch
 from torch.utils.data import Dataset
 
 from spikegyro.errors import InputError
-from spikegyro.events.core import EventArray, Recording
 from spikegyro.events import binning_torch
+from spikegyro.events.core import EventArray, Recording
 from spikegyro.events.io import read_recording
 from spikegyro.events.representations import accumulated_frames, spike_tensor, voxel_grid
 
