@@ -422,9 +422,8 @@ def encode_batch(batch: EventBatch, input_spec: InputSpec | dict[str, Any]) -> t
 
 
 def events_on_device(device: torch.device | str, data_path: str) -> bool:
-    """Whether training batches travel as event lists: ``auto`` picks them on CUDA only."""
-    if data_path not in DATA_PATHS:
-        raise InputError(f"--data-path {data_path}: choose one of {', '.join(DATA_PATHS)}.")
+    """Whether training batches travel as event lists (``data_path`` one of DATA_PATHS):
+    ``auto`` picks them on CUDA only."""
     if data_path == "auto":
         return torch.device(device).type == "cuda"
     return data_path == "events"
