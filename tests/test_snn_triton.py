@@ -92,7 +92,7 @@ def test_fused_surrogate_backward_matches_rho_times_grad(kernels):
     grad = torch.randn(20, 513, device=DEVICE)
     rho = functional.surrogate_gradient(potential.clone(), 0.3, 0.13) * grad
     fused = kernels.surrogate_backward(potential, grad, 0.3, 0.13, functional.TAU_RHO)
-    torch.testing.assert_close(fused, rho, rtol=1e-6, atol=1e-7)
+    torch.testing.assert_close(fused, rho, rtol=1e-5, atol=1e-7)  # tl.exp may use ex2.approx
 
 
 def test_snn6_step_through_the_fused_kernels_matches_the_reference(kernels, monkeypatch):

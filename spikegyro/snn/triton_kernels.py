@@ -60,14 +60,18 @@ def _fire_kernel(
     cols = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
     mask = cols < m
     history = tl.zeros((BLOCK_M,), dtype=tl.int64)  # bit k-1: spike k steps ago
-    for t in range(0, steps):
-        u = tl.load(u_ptr + t * stride_ut + cols * stride_um, mask=mask, other=0.0)
+    u_ptrs = u_ptr + cols.to(tl.int64) * stride_um  # 64-bit offsets: no overflow at any batch
+    out = cols.to(tl.int64)
+    for _ in range(0, steps):
+        u = tl.load(u_ptrs, mask=mask, other=0.0)
         for k in tl.static_range(TAPS - 1, 0, -1):  # oldest spike first, as the torch code
             fired = ((history >> (k - 1)) & 1).to(tl.float32)
             u = u + tl.load(nu_ptr + k) * fired
         spike = u >= theta
-        tl.store(pot_ptr + t * m + cols, u, mask=mask)
-        tl.store(spk_ptr + t * m + cols, spike.to(tl.float32), mask=mask)
+        tl.store(pot_ptr + out, u, mask=mask)
+        tl.store(spk_ptr + out, spike.to(tl.float32), mask=mask)
+        u_ptrs += stride_ut
+        out += m
         history = (history << 1) | spike.to(tl.int64)
 
 
@@ -98,7 +102,7 @@ def fire_rows(
 def _surrogate_kernel(
     pot_ptr, grad_ptr, out_ptr, n, theta, inv_width, height, BLOCK_N: tl.constexpr
 ):
-    offsets = tl.program_id(0) * BLOCK_N + tl.arange(0, BLOCK_N)
+    offsets = tl.program_id(0).to(tl.int64) * BLOCK_N + tl.arange(0, BLOCK_N)
     mask = offsets < n
     u = tl.load(pot_ptr + offsets, mask=mask, other=0.0)
     g = tl.load(grad_ptr + offsets, mask=mask, other=0.0)
