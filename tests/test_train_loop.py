@@ -6,6 +6,7 @@ import csv
 import json
 import os
 import socket
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -34,6 +35,7 @@ from spikegyro.train.loop import (
 )
 from spikegyro.train.loss import angular_velocity_loss
 from spikegyro.train.presets import TrainConfig, resolve_config
+from spikegyro.train.throughput import RunClock, bare_step_rate
 
 SIZE = 64  # SNN-6 needs at least 63 px for its five unpadded convolutions
 CAMERA = Camera(SIZE, SIZE, fx=56.0, fy=56.0, cx=31.5, cy=31.5)
@@ -57,7 +59,7 @@ def tiny_config(dataset: Path, out: Path, **kw) -> TrainConfig:
     values = dict(
         data=str(dataset), out=str(out), model="snn6", sensor=(SIZE, SIZE), window_ms=20,
         loss_start_step=10, batch_size=4, lr=1e-3, iterations=4, val_every=2, log_every=1,
-        num_workers=0, device="cpu", threads=1,
+        num_workers=0, device="cpu", threads=1, bare_steps=2,
     )  # fmt: skip
     values.update(kw)
     return resolve_config("paper", values)
@@ -129,6 +131,40 @@ def test_run_writes_its_files_and_resumes_to_the_same_state(dataset, tmp_path):
     init = tiny_config(dataset, tmp_path / "c", init=str(run / "last.pt"), lr=0.0, iterations=1)
     train(replace(init, val_every=1), progress=False)
     assert_same_weights(run / "last.pt", tmp_path / "c" / "last.pt")
+
+
+def test_event_data_path_trains_exactly_like_the_dense_path(dataset, tmp_path):
+    """Event lists binned by the loop give the same batches, so the same weights, bit for bit."""
+    kw = dict(iterations=3, val_every=3)
+    dense = train(tiny_config(dataset, tmp_path / "d", data_path="dense", **kw), progress=False)
+    events = train(tiny_config(dataset, tmp_path / "e", data_path="events", **kw), progress=False)
+    assert (dense.data_path, events.data_path) == ("dense", "events")
+    assert_same_weights(tmp_path / "d" / "last.pt", tmp_path / "e" / "last.pt")
+    assert dense.last_loss == events.last_loss
+    record = json.loads((tmp_path / "e" / "throughput.json").read_text())
+    assert record["data_path"] == "events" and record["run_samples_per_s"] > 0
+    assert record["bare_ms_per_step"] > 0
+    assert record["run_over_bare"] == pytest.approx(
+        record["run_samples_per_s"] / record["bare_samples_per_s"]
+    )
+
+
+def test_bare_step_leaves_the_model_alone_and_the_clock_skips_pauses():
+    torch.manual_seed(0)
+    net = build_model("ann6", in_channels=2, batch_norm=False)
+    before = {k: v.clone() for k, v in net.state_dict().items()}
+    x, y = torch.rand(4, 2, 64, 64), torch.rand(4, 3)
+    bare = bare_step_rate(net, x, y, windows=2, loss_start_step=0, lr=1e-2, steps=2)
+    assert bare.steps == 2 and bare.samples_per_s == pytest.approx(2000 / bare.ms_per_step)
+    for k, v in net.state_dict().items():
+        assert torch.equal(v, before[k])
+    clock = RunClock(samples_per_step=8)
+    clock.step()  # the first step only starts the clock
+    with clock.paused():
+        time.sleep(0.3)
+    clock.step()
+    assert clock.steps == 1 and clock.busy_s < 0.1
+    assert clock.samples_per_s == pytest.approx(8 / clock.busy_s)
 
 
 def test_time_budget_stops_gracefully_with_a_checkpoint(dataset, tmp_path):
@@ -226,6 +262,7 @@ def test_cli_trains_overrides_options_and_resumes(dataset, tmp_path):
     ]  # fmt: skip
     result = runner.invoke(app, args, catch_exceptions=False)
     assert result.exit_code == 0, result.output
+    assert "throughput:" in result.output and "bare step" in result.output
     saved = json.loads((out / "config.json").read_text())
     assert saved["preset"] == "cpu" and saved["batch_size"] == 2 and saved["scale"] == 1.0
     assert saved["train_window_ms"] == 60 and saved["train_loss_start_step"] == 45  # preset

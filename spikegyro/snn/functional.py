@@ -14,7 +14,11 @@ layers in :mod:`spikegyro.snn.layers` keep their data that way.
 from __future__ import annotations
 
 import contextlib
+import functools
+import importlib
+import os
 from collections.abc import Iterator
+from types import ModuleType
 
 import torch
 import torch.nn.functional as F
@@ -28,6 +32,24 @@ _PARALLEL_GRAIN = 32768
 _BLOCK_STEPS = 128
 """PSP block length (steps): windows up to this long take one matrix product; longer ones are
 cut into blocks so the cost grows linearly with T."""
+
+
+@functools.cache
+def _triton_module() -> ModuleType | None:
+    """:mod:`spikegyro.snn.triton_kernels`, or None where Triton is not installed."""
+    try:
+        return importlib.import_module("spikegyro.snn.triton_kernels")
+    except ImportError:
+        return None
+
+
+def _fused(x: torch.Tensor, ref_kernel: torch.Tensor | None = None) -> ModuleType | None:
+    """The Triton kernels when they handle ``x`` (float32 on CUDA, or any tensor under Triton's
+    interpreter), else None: then the torch code below runs."""
+    if not (x.is_cuda or os.environ.get("TRITON_INTERPRET", "0") == "1"):
+        return None  # the CPU path never imports Triton
+    module = _triton_module()
+    return module if module is not None and module.enabled_for(x, ref_kernel) else None
 
 
 class _TimeRows:
@@ -145,9 +167,13 @@ def _fire_rows(
     At step t every neuron with u[t] ≥ θ spikes, and ν[k]·spike is added to its u[t + k] for
     k = 1 … len(ν) − 1 (ν[0] must be 0). Whole-row operations only; the loop is over time.
     ``in_place`` adds the refractory responses to ``rows`` itself (which must be contiguous).
+    On CUDA (float32, Triton installed) one fused kernel does the whole recursion, with
+    bit-identical results (:mod:`spikegyro.snn.triton_kernels`).
     """
-    if ref_kernel.dim() != 1 or ref_kernel.numel() == 0 or float(ref_kernel[0]) != 0.0:
-        raise ValueError("ref_kernel must be a 1-D tensor with ref_kernel[0] == 0")
+    _check_ref_kernel(ref_kernel)
+    fused = _fused(rows, ref_kernel)
+    if fused is not None:
+        return fused.fire_rows(rows, theta, ref_kernel, in_place=in_place)
     if in_place:
         potential = rows
     else:
@@ -163,6 +189,16 @@ def _fire_rows(
             if ahead:
                 potential[t + 1 : t + 1 + ahead].addcmul_(taps[:ahead], spikes[t])
     return spikes, potential
+
+
+def _check_ref_kernel(ref_kernel: torch.Tensor) -> None:
+    if ref_kernel.dim() != 1 or ref_kernel.numel() == 0:
+        raise ValueError("ref_kernel must be a non-empty 1-D tensor")
+    # Reading tap 0 of a CUDA kernel waits for the device, which a CUDA graph capture forbids;
+    # tap 0 is never used (the loops start at k = 1), so the check only guards the contract.
+    capturing = ref_kernel.is_cuda and torch.cuda.is_current_stream_capturing()
+    if not capturing and float(ref_kernel[0]) != 0.0:
+        raise ValueError("ref_kernel must be a 1-D tensor with ref_kernel[0] == 0")
 
 
 @contextlib.contextmanager
@@ -216,7 +252,11 @@ class _SpikeFunction(torch.autograd.Function):
         if grad is None:
             return (None,) * 6
         (potential,) = ctx.saved_tensors
-        rho = surrogate_gradient(potential, *ctx.constants).mul_(grad)
+        fused = _fused(potential)
+        if fused is not None:
+            rho = fused.surrogate_backward(potential, grad, *ctx.constants)
+        else:
+            rho = surrogate_gradient(potential, *ctx.constants).mul_(grad)
         return rho, None, None, None, None, None
 
 

@@ -15,7 +15,7 @@ from rich.console import Console
 
 from spikegyro.errors import InputError
 from spikegyro.train import distributed
-from spikegyro.train.loop import resume_config, train
+from spikegyro.train.loop import TrainResult, resume_config, train
 from spikegyro.train.presets import PRESETS, resolve_config
 
 
@@ -29,6 +29,18 @@ def _json_option(text: str | None, name: str) -> dict[str, Any] | None:
     if not isinstance(value, dict):
         raise InputError(f"--{name} {text!r}: expected a JSON object like '{{\"key\": 1}}'.")
     return value
+
+
+def throughput_line(result: TrainResult) -> str:
+    """The run's samples/s against the bare step's, as ``train`` prints them."""
+    line = f"throughput: {result.samples_per_s:.1f} samples/s ({result.data_path} data path)"
+    if result.bare is not None:
+        bare = result.bare
+        line += (
+            f", bare step {bare.samples_per_s:.1f} samples/s ({bare.ms_per_step:.1f} ms/step): "
+            f"the run holds {result.samples_per_s / bare.samples_per_s:.0%} of it"
+        )
+    return line
 
 
 def train_command(
@@ -75,6 +87,12 @@ def train_command(
     num_workers: int = typer.Option(None, help="DataLoader workers per process."),
     threads: int = typer.Option(None, help="Torch CPU threads (0 = default)."),
     device: str = typer.Option(None, help="auto, cpu, cuda or cuda:K."),
+    data_path: str = typer.Option(
+        None, help="events (binned on the device), dense, or auto (events on CUDA)."
+    ),
+    bare_steps: int = typer.Option(
+        None, help="Bare training steps timed at the end, to compare with the run (0 = off)."
+    ),
     sim: str = typer.Option(None, help="Simulator settings for --online, as JSON."),
     tensorboard: bool = typer.Option(None, "--tensorboard/--no-tensorboard", help="TB logs."),
 ) -> None:
@@ -112,6 +130,8 @@ def train_command(
         "num_workers": num_workers,
         "threads": threads,
         "device": device,
+        "data_path": data_path,
+        "bare_steps": bare_steps,
         "sim": _json_option(sim, "sim"),
         "tensorboard": tensorboard,
     }
@@ -144,4 +164,5 @@ def train_command(
                 f"error {result.val['val_mean_err_deg']:.1f} deg/s (best median "
                 f"{result.best_val_median_rel:.3f})"
             )
+        console.print(throughput_line(result))
         console.print(f"run directory: {result.run_dir}")

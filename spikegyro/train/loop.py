@@ -12,7 +12,6 @@ resumed or distributed run sees the same batches as one uninterrupted single-pro
 
 from __future__ import annotations
 
-import csv
 import functools
 import math
 import random
@@ -39,25 +38,15 @@ from spikegyro.train.data import (
     OnlineSource,
     TrainingSamples,
     Window,
+    device_batch,
+    events_on_device,
     fixed_windows,
-    model_batch,
     sequence_windows,
 )
 from spikegyro.train.infer import predict_windows
-from spikegyro.train.loss import angular_velocity_loss
 from spikegyro.train.presets import TrainConfig, load_config
-
-LOG_FIELDS = (
-    "step",
-    "loss",
-    "lr",
-    "val_loss",
-    "val_median_rel",
-    "val_mean_err_deg",
-    "elapsed_s",
-    "samples_per_s",
-)
-RESUME_FILE = "resume.pt"
+from spikegyro.train.runfiles import RESUME_FILE, ProgressBar, RunFiles, tensorboard
+from spikegyro.train.throughput import BareStep, RunClock, bare_step_rate, train_step
 
 
 @dataclass
@@ -71,6 +60,9 @@ class TrainResult:
     best_val_median_rel: float
     val: dict[str, float] = field(default_factory=dict)
     stopped_early: bool = False
+    samples_per_s: float = math.nan  # steady state, without validation (see RunClock)
+    bare: BareStep | None = None  # the bare step of one process's share of the batch
+    data_path: str = "dense"
 
 
 # ------------------------------------------------------------------------------ components
@@ -119,8 +111,11 @@ def online_simulator(config: TrainConfig, split: str = "train") -> functools.par
     return functools.partial(simulate_sequence, sim_config, seed=config.seed, split=split)
 
 
-def training_samples(config: TrainConfig, spec: InputSpec) -> TrainingSamples:
-    """Random training windows of ``train_window_ms``, augmented, encoded as ``spec`` says."""
+def training_samples(
+    config: TrainConfig, spec: InputSpec, *, events: bool = False
+) -> TrainingSamples:
+    """Random training windows of ``train_window_ms``, augmented, encoded as ``spec`` says
+    (or, with ``events``, as event lists to be binned on the device)."""
     spec = replace(spec, window_ms=config.train_window_ms)
     if config.online:
         source = OnlineSource(online_simulator(config), config.train_window_ms)
@@ -128,7 +123,7 @@ def training_samples(config: TrainConfig, spec: InputSpec) -> TrainingSamples:
         source = FileSource.from_split(config.data, "train", config.train_window_ms)
     augment = AugmentConfig(config.hflip, config.vflip, config.time_reverse)
     return TrainingSamples(
-        source, spec, seed=config.seed, augment=augment if augment.enabled else None
+        source, spec, seed=config.seed, augment=augment if augment.enabled else None, events=events
     )
 
 
@@ -234,69 +229,6 @@ def set_rng_states(states: dict[str, Any]) -> None:
         torch.cuda.set_rng_state_all(states["cuda"])
 
 
-# ------------------------------------------------------------------------------- run files
-
-
-class RunFiles:
-    """Paths and writers of a run directory (used by rank 0 only)."""
-
-    def __init__(self, run_dir: Path) -> None:
-        self.dir = run_dir
-        self.config = run_dir / "config.json"
-        self.log = run_dir / "log.csv"
-        self.last = run_dir / "last.pt"
-        self.best = run_dir / "best.pt"
-        self.resume = run_dir / RESUME_FILE
-        self.curve = run_dir / "loss.png"
-
-    def write_config(self, config: TrainConfig) -> None:
-        self.dir.mkdir(parents=True, exist_ok=True)
-        with atomic_path(self.config) as tmp:
-            tmp.write_text(config.to_json() + "\n")
-
-    def start_log(self, keep_until_step: int) -> None:
-        """Create the log, or on resume drop rows logged after the checkpoint being resumed."""
-        rows = []
-        if self.log.exists() and keep_until_step > 0:
-            with open(self.log, newline="") as f:
-                rows = [r for r in csv.DictReader(f) if int(r["step"]) <= keep_until_step]
-        with atomic_path(self.log) as tmp, open(tmp, "w", newline="") as f:
-            writer = csv.DictWriter(f, LOG_FIELDS)
-            writer.writeheader()
-            writer.writerows(rows)
-
-    def append_log(self, row: dict[str, Any]) -> None:
-        with open(self.log, "a", newline="") as f:
-            csv.DictWriter(f, LOG_FIELDS).writerow({k: row.get(k, "") for k in LOG_FIELDS})
-
-    def plot_curve(self) -> None:
-        """loss.png: training loss and validation loss (rad/s) against the step."""
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        with open(self.log, newline="") as f:
-            rows = list(csv.DictReader(f))
-        if not rows:
-            return
-        fig, ax = plt.subplots(figsize=(6, 3.5))
-        train = [(int(r["step"]), float(r["loss"])) for r in rows if r["loss"]]
-        val = [(int(r["step"]), float(r["val_loss"])) for r in rows if r["val_loss"]]
-        if train:
-            ax.plot(*zip(*train, strict=True), label="training loss", lw=1)
-        if val:
-            ax.plot(*zip(*val, strict=True), "o-", label="validation loss", lw=1.5)
-        ax.set_xlabel("step")
-        ax.set_ylabel("mean Euclidean error (rad/s)")
-        ax.grid(alpha=0.3)
-        ax.legend()
-        fig.tight_layout()
-        with atomic_path(self.curve) as tmp:
-            fig.savefig(tmp, dpi=120, format="png")
-        plt.close(fig)
-
-
 def resume_config(run_dir: Path, overrides: dict[str, Any] | None = None) -> TrainConfig:
     """The saved configuration of a run, with ``overrides`` (e.g. more iterations) applied."""
     path = run_dir / "config.json"
@@ -358,12 +290,13 @@ def _train(
         ids = [ctx.device.index] if ctx.device.type == "cuda" else None
         net = DistributedDataParallel(model, device_ids=ids)
 
-    samples = training_samples(config, spec)
+    events = events_on_device(ctx.device, config.data_path)
+    samples = training_samples(config, spec, events=events)
     val_windows = validation_windows(config) if ctx.is_main else []
     if ctx.is_main:
         files.write_config(config)
         files.start_log(start_step)
-    writer = _tensorboard(files.dir) if config.tensorboard and ctx.is_main else None
+    writer = tensorboard(files.dir) if config.tensorboard and ctx.is_main else None
 
     loader = DataLoader(
         samples,
@@ -372,30 +305,26 @@ def _train(
             start_step, config.iterations, config.batch_size, ctx.rank, ctx.world_size
         ),
         num_workers=config.num_workers,
+        collate_fn=samples.collate,
         worker_init_fn=_worker_init if config.num_workers else None,
         persistent_workers=False,
         pin_memory=ctx.device.type == "cuda",
     )
-    bar = _ProgressBar(config, start_step, enabled=progress and ctx.is_main)
+    bar = ProgressBar(config, start_step, enabled=progress and ctx.is_main)
+    clock = RunClock(config.batch_size)
     t0 = time.monotonic() - elapsed0
     step, loss_sum, loss_n, last_loss, val = start_step, 0.0, 0, math.nan, {}
     stopped_early = False
     net.train()
     with bar:
         for inputs, targets in loader:
-            x, y = model_batch(inputs, targets, spec)
-            x = x.to(ctx.device, non_blocking=True)
-            y = y.to(ctx.device, non_blocking=True)
-            loss = angular_velocity_loss(net(x), y, config.train_loss_start_step)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            if config.grad_clip > 0:
-                nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
-            optimizer.step()
+            x, y = device_batch(inputs, targets, spec, ctx.device)
+            loss = train_step(net, optimizer, x, y, config.train_loss_start_step, config.grad_clip)
             scheduler.step()
             step += 1
-            loss_sum += float(loss.detach())
+            loss_sum += float(loss)
             loss_n += 1
+            clock.step()
             over_time = config.max_minutes > 0 and time.monotonic() - t0 > 60 * config.max_minutes
             stop = distributed.agree(over_time, ctx)
             final = stop or step == config.iterations
@@ -412,14 +341,15 @@ def _train(
                     "samples_per_s": f"{(step - start_step) * config.batch_size / max(elapsed - elapsed0, 1e-9):.2f}",  # noqa: E501
                 }
             if step % config.val_every == 0 or final:
-                if ctx.is_main:
-                    val = validate(model, spec, val_windows, config, ctx.device)
-                    row.update({k: f"{v:.6g}" for k, v in val.items()})
-                    better = val["val_median_rel"] < best
-                    best = min(best, val["val_median_rel"])
-                    _checkpoint(files, model, config, spec, kwargs, optimizer, scheduler, step,
-                                best, time.monotonic() - t0, val, better)  # fmt: skip
-                distributed.barrier(ctx)
+                with clock.paused():
+                    if ctx.is_main:
+                        val = validate(model, spec, val_windows, config, ctx.device)
+                        row.update({k: f"{v:.6g}" for k, v in val.items()})
+                        better = val["val_median_rel"] < best
+                        best = min(best, val["val_median_rel"])
+                        _checkpoint(files, model, config, spec, kwargs, optimizer, scheduler, step,
+                                    best, time.monotonic() - t0, val, better)  # fmt: skip
+                    distributed.barrier(ctx)
             if row and ctx.is_main:
                 row.setdefault("step", step)
                 files.append_log(row)
@@ -432,11 +362,21 @@ def _train(
                 stopped_early = step < config.iterations
                 break
     elapsed = time.monotonic() - t0
+    bare = None
+    if config.bare_steps and step > start_step:
+        bare = bare_step_rate(
+            model, x, y, windows=config.batch_size // ctx.world_size, lr=config.lr,
+            loss_start_step=config.train_loss_start_step, grad_clip=config.grad_clip,
+            steps=config.bare_steps,
+        )  # fmt: skip
+    data_path = "events" if events else "dense"
     if ctx.is_main:
         if writer is not None:
             writer.close()
         files.plot_curve()
-    return TrainResult(files.dir, step, elapsed, last_loss, best, val, stopped_early)
+        files.write_throughput(clock.samples_per_s, bare, data_path, ctx.world_size)
+    return TrainResult(files.dir, step, elapsed, last_loss, best, val, stopped_early,
+                       clock.samples_per_s, bare, data_path)  # fmt: skip
 
 
 def _checkpoint(
@@ -498,63 +438,3 @@ def _load_init(model: nn.Module, config: TrainConfig) -> None:
         model.load_state_dict(payload["state_dict"])
     except RuntimeError as exc:
         raise InputError(f"--init {config.init}: weights do not fit ({exc}).") from None
-
-
-def _tensorboard(run_dir: Path) -> Any:
-    try:
-        from torch.utils.tensorboard import SummaryWriter
-    except ImportError:
-        raise InputError(
-            "--tensorboard needs the tensorboard package (pip install tensorboard); the CSV "
-            "log is always written."
-        ) from None
-    return SummaryWriter(str(run_dir / "tensorboard"))
-
-
-class _ProgressBar:
-    """A rich progress bar with loss, validation error, elapsed time and ETA (rank 0 only)."""
-
-    def __init__(self, config: TrainConfig, start: int, enabled: bool) -> None:
-        self.enabled = enabled
-        if not enabled:
-            return
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
-
-        self.progress = Progress(
-            TextColumn("[bold]train[/] {task.fields[model]}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("loss {task.fields[loss]}  val rel {task.fields[val]}"),
-            TimeElapsedColumn(),
-            TextColumn("ETA"),
-            TimeRemainingColumn(),
-        )
-        self.task = self.progress.add_task(
-            "train", total=config.iterations, completed=start, model=config.model,
-            loss="-", val="-",
-        )  # fmt: skip
-
-    def __enter__(self) -> _ProgressBar:
-        if self.enabled:
-            self.progress.__enter__()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self.enabled:
-            self.progress.__exit__(*exc)
-
-    def update(self, step: int, loss: float, val: dict[str, float]) -> None:
-        if not self.enabled:
-            return
-        rel = val.get("val_median_rel")
-        self.progress.update(
-            self.task, completed=step, loss=f"{loss:.3f}" if loss == loss else "-",
-            val="-" if rel is None else f"{rel:.3f}",
-        )  # fmt: skip

@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 from spikegyro.errors import InputError
+from spikegyro.train.data import DATA_PATHS
 
 MODEL_INPUTS = {"snn6": "spikes", "ann6": "voxel", "resnet50": "voxel"}
 
@@ -55,6 +56,11 @@ class TrainConfig:
         num_workers: DataLoader worker processes per training process.
         threads: torch intra-op threads (0 = torch's default).
         device: "auto", "cpu", "cuda" or "cuda:K".
+        data_path: how training batches reach the device: "events" (event lists, binned on the
+            device), "dense" (input tensors encoded in the DataLoader workers) or "auto"
+            (events on CUDA, dense on the CPU).
+        bare_steps: at the end of the run, time this many bare training steps (same step on one
+            batch already on the device) to report beside the run's samples/s (0 = off).
         sim: SimConfig overrides for online mode (dict; see ``spikegyro simulate``).
         tensorboard: also write TensorBoard scalars (needs the tensorboard package).
     """
@@ -94,6 +100,8 @@ class TrainConfig:
     num_workers: int = 4
     threads: int = 0
     device: str = "auto"
+    data_path: str = "auto"
+    bare_steps: int = 10
     sim: dict[str, Any] | None = None
     tensorboard: bool = False
 
@@ -107,6 +115,11 @@ class TrainConfig:
                 f"--model {self.model} with --input {self.input}: the SNN takes spikes, the "
                 "ANNs take voxel or frames."
             )
+        if self.data_path not in DATA_PATHS:
+            choices = ", ".join(DATA_PATHS)
+            raise InputError(f"--data-path {self.data_path}: choose one of {choices}.")
+        if self.bare_steps < 0:
+            raise InputError(f"--bare-steps {self.bare_steps}: must be 0 (off) or positive.")
         if self.lr_schedule not in ("constant", "cosine"):
             raise InputError(f"--lr-schedule {self.lr_schedule}: use constant or cosine.")
         if not self.train_window_ms:
@@ -163,6 +176,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "val_windows": 25,
         "log_every": 5,
         "num_workers": 0,
+        "bare_steps": 3,
     },
 }
 

@@ -1,0 +1,131 @@
+"""The training step, and how fast a run moves samples against how fast the bare step could.
+
+A run is data-bound when its samples/s fall short of the *bare step*: the same step (forward,
+backward, optimizer update) repeated on one batch that is already on the device, so that no data
+loading, host-device copy or input binning is involved. :class:`RunClock` times the run itself,
+:func:`bare_step_rate` the bare step, in the same process and on the same device, so the ratio
+of the two says how much of the device the data path leaves idle.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import math
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from spikegyro.train.loss import angular_velocity_loss
+
+
+def train_step(
+    net: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    loss_start_step: int,
+    grad_clip: float = 0.0,
+) -> torch.Tensor:
+    """One optimizer step on a batch; returns the (detached) loss, rad/s.
+
+    ``grad_clip`` > 0 clips the gradient norm of ``net``'s parameters first.
+    """
+    loss = angular_velocity_loss(net(x), y, loss_start_step)
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    if grad_clip > 0:
+        nn.utils.clip_grad_norm_(net.parameters(), grad_clip)
+    optimizer.step()
+    return loss.detach()
+
+
+def synchronize(device: torch.device) -> None:
+    """Wait for the device's queued work (CUDA runs asynchronously), so wall time is true."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+@dataclass(frozen=True)
+class BareStep:
+    """Speed of the bare training step: ms per step and windows per second."""
+
+    ms_per_step: float
+    samples_per_s: float
+    steps: int
+
+
+def bare_step_rate(
+    model: nn.Module,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    *,
+    windows: int,
+    loss_start_step: int,
+    lr: float,
+    grad_clip: float = 0.0,
+    steps: int = 10,
+) -> BareStep:
+    """Time ``steps`` training steps of a copy of ``model`` (Adam, fresh state) on one batch.
+
+    The model itself is not changed. One untimed warm-up step comes first (kernel selection,
+    allocator growth).
+
+    Args:
+        x, y: a model-ready batch and its target, on the model's device.
+        windows: windows in the batch (an ANN batch holds several sub-windows per window).
+    """
+    net = copy.deepcopy(model).train()
+    optimizer = torch.optim.Adam(net.parameters(), lr=lr)
+    device = x.device
+    train_step(net, optimizer, x, y, loss_start_step, grad_clip)
+    synchronize(device)
+    start = time.perf_counter()
+    for _ in range(steps):
+        train_step(net, optimizer, x, y, loss_start_step, grad_clip)
+    synchronize(device)
+    seconds = (time.perf_counter() - start) / steps
+    return BareStep(1000.0 * seconds, windows / seconds, steps)
+
+
+class RunClock:
+    """Samples/s of a training loop in steady state.
+
+    Counts from the end of the first step (which pays for worker start-up and warm-up) to the end
+    of the last one, without the time spent inside :meth:`paused` (validation, checkpoints).
+    The loop synchronizes with the device every step (it reads the loss), so wall time is true.
+    """
+
+    def __init__(self, samples_per_step: int) -> None:
+        self.samples_per_step = samples_per_step
+        self.steps = 0
+        self.busy_s = 0.0
+        self._last: float | None = None
+        self._paused_s = 0.0
+
+    def step(self) -> None:
+        """Mark the end of a training step."""
+        now = time.perf_counter()
+        if self._last is not None:
+            self.steps += 1
+            self.busy_s += now - self._last - self._paused_s
+        self._last, self._paused_s = now, 0.0
+
+    @contextlib.contextmanager
+    def paused(self) -> Iterator[None]:
+        """Leave the enclosed time out of the count."""
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self._paused_s += time.perf_counter() - start
+
+    @property
+    def samples_per_s(self) -> float:
+        """Windows per second over the counted steps (nan before the second step)."""
+        if not self.steps or self.busy_s <= 0:
+            return math.nan
+        return self.steps * self.samples_per_step / self.busy_s
