@@ -205,6 +205,7 @@ def _finetune(config: DemoConfig, data_dir: Path, run_dir: Path) -> dict[str, An
             "val_windows": 5,
             "log_every": 1,
             "num_workers": 0,
+            "bare_steps": 0,
             "seed": config.seed,
         },
     )
