@@ -15,6 +15,13 @@ A fraction of sequences (``procedural_fraction``) uses a procedural panorama gen
 sequence's own seed stream, which is distinct for every (split, index), so no procedural scene is
 shared across splits. Photographs get fine 1/f detail (``detail_strength``) and every sequence
 a uniformly random start orientation, i.e. a random orientation of the panorama.
+
+Sensor presets (``SimConfig.sensor``, :mod:`spikegyro.sim.sensor`): ``ideal`` is the paper's
+simulator and gives exactly the files it always gave; ``davis240c`` draws a real sensor per
+sequence (thresholds, mismatch, refractory period, background activity, hot pixels,
+photoreceptor bandwidth, lens), mixes in sparse and office scenes (:mod:`spikegyro.sim.indoor`)
+and maps the distorted events onto the pinhole camera as ``spikegyro predict --calib`` does. The
+drawn values are in each file's ``sensor_*`` attributes and in meta.json's ``sensor_draws``.
 """
 
 from __future__ import annotations
@@ -23,7 +30,7 @@ import json
 import tempfile
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, astuple, dataclass, field, replace
 from functools import lru_cache
 from multiprocessing import get_context
 from pathlib import Path
@@ -34,10 +41,12 @@ import numpy as np
 
 from spikegyro import __version__
 from spikegyro.errors import InputError
+from spikegyro.events.calib import PinholeCamera
 from spikegyro.events.core import GyroTrace, Recording
 from spikegyro.events.io import atomic_path, read_recording, write_recording
 from spikegyro.sim.camera import Camera
 from spikegyro.sim.esim import EventSimConfig, simulate
+from spikegyro.sim.indoor import office_panorama, sparse_panorama
 from spikegyro.sim.panorama import (
     Panorama,
     bundled_panorama_paths,
@@ -46,6 +55,7 @@ from spikegyro.sim.panorama import (
     split_panoramas,
 )
 from spikegyro.sim.procedural import add_detail, panorama_width, procedural_panorama
+from spikegyro.sim.sensor import SensorParams, SensorPreset, sensor_preset
 from spikegyro.sim.trajectory import TrajectoryConfig, random_trajectory
 
 SPLITS = ("train", "val", "test")
@@ -67,6 +77,8 @@ class SimConfig:
         procedural_fraction: share of sequences on procedural panoramas.
         detail_strength: log-intensity std of the smooth texture added to photographs.
         val_fraction, test_fraction: share of sequences (and of folder panoramas) per split.
+        sensor: sensor preset, ``ideal`` (the settings above) or ``davis240c`` (drawn per
+            sequence; replaces the thresholds, noise, scene mix and detail strength above).
     """
 
     duration_ms: int = 500
@@ -80,6 +92,7 @@ class SimConfig:
     detail_strength: float = 0.4
     val_fraction: float = 0.05
     test_fraction: float = 0.05
+    sensor: str = "ideal"
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-serialisable dict (round-trips through :meth:`from_dict`)."""
@@ -133,20 +146,31 @@ def simulate_sequence(config: SimConfig, index: int, seed: int, split: str = "tr
     """
     if split not in SPLITS:
         raise InputError(f"split '{split}': must be one of {', '.join(SPLITS)}.")
+    preset = sensor_preset(config.sensor)
     rng = sequence_rng(seed, split, index)
-    floor = config.events.min_contrast
-    c_on, c_off = np.maximum(rng.normal(config.contrast_mean, config.contrast_std, 2), floor)
     photos = _splits(config)[split]
     width = panorama_width(config.camera)
-    if not photos or rng.random() < config.procedural_fraction:
-        panorama = procedural_panorama(rng, width, name=f"procedural/{split}/{index}")
+    sensor = None
+    if preset is None:
+        floor = config.events.min_contrast
+        c_on, c_off = np.maximum(rng.normal(config.contrast_mean, config.contrast_std, 2), floor)
+        if not photos or rng.random() < config.procedural_fraction:
+            panorama = procedural_panorama(rng, width, name=f"procedural/{split}/{index}")
+        else:
+            photo = _photo(str(photos[int(rng.integers(len(photos)))]))
+            panorama = add_detail(photo, rng, config.detail_strength, width)
     else:
-        photo = _photo(str(photos[int(rng.integers(len(photos)))]))
-        panorama = add_detail(photo, rng, config.detail_strength, width)
+        sensor = preset.draw(rng, config.camera.width / 240)
+        c_on, c_off = sensor.contrast_on, sensor.contrast_off
+        panorama = _sensor_scene(preset, rng, photos, width, f"{split}/{index}")
     duration_s = config.duration_ms / 1000.0
     trajectory = random_trajectory(rng, duration_s, config.trajectory)
     events_config = replace(config.events, contrast_on=float(c_on), contrast_off=float(c_off))
-    rec = simulate(panorama, trajectory, config.camera, events_config, rng, duration_s)
+    rec = simulate(
+        panorama, trajectory, config.camera, events_config, rng, duration_s, sensor=sensor
+    )
+    if sensor is not None:
+        rec = _sensor_recording(rec, config, preset, sensor)
     n_windows = config.duration_ms // 100  # whole 100 ms windows only
     t = rec.events.t
     windows = np.bincount(t[t < n_windows * WINDOW_US] // WINDOW_US, minlength=n_windows)
@@ -164,6 +188,43 @@ def simulate_sequence(config: SimConfig, index: int, seed: int, split: str = "tr
         "generator": f"spikegyro {__version__}",
     }
     return Recording(events=rec.events, gyro=rec.gyro, attrs=attrs)
+
+
+def _sensor_scene(
+    preset: SensorPreset, rng: np.random.Generator, photos: list[Path], width: int, name: str
+) -> Panorama:
+    """A scene of the preset's mix: sparse shapes, office, photograph or procedural."""
+    weights = np.array(preset.scenes, dtype=np.float64)
+    if not photos:
+        weights[2] = 0.0
+    kind = int(rng.choice(4, p=weights / weights.sum()))
+    if kind == 0:
+        return sparse_panorama(rng, width, name=f"sparse/{name}")
+    if kind == 1:
+        return office_panorama(rng, width, name=f"office/{name}")
+    if kind == 2:
+        photo = _photo(str(photos[int(rng.integers(len(photos)))]))
+        return add_detail(photo, rng, rng.uniform(*preset.detail_strength), width)
+    return procedural_panorama(rng, width, name=f"procedural/{name}")
+
+
+def _sensor_recording(
+    rec: Recording, config: SimConfig, preset: SensorPreset, sensor: SensorParams
+) -> Recording:
+    """Events of a drawn sensor, mapped onto the ideal pinhole if the preset says so."""
+    calib = sensor.calibration(config.camera)
+    events = rec.events
+    if preset.undistort:
+        cam = config.camera
+        target = PinholeCamera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
+        events = calib.map_events(events, target)
+    attrs = {
+        **rec.attrs,
+        "sensor": config.sensor,
+        "sensor_calib": list(astuple(calib)),  # fx fy cx cy k1 k2 p1 p2 k3, as calib.txt
+        "sensor_events_undistorted": preset.undistort,
+    }
+    return Recording(events=events, gyro=rec.gyro, attrs=attrs)
 
 
 def sequence_path(out: Path, split: str, index: int) -> Path:
