@@ -129,9 +129,7 @@ def office_panorama(rng: np.random.Generator, width: int = 1280, name: str = "of
     floor_texture = np.float32(rng.uniform(0.1, 0.5)) * fractal_noise(
         canvas.height, width, rng, beta=rng.uniform(2.0, 3.0)
     )
-    canvas.log[:] = np.where(
-        lat < -floor, rng.uniform(-2.0, -0.5) + floor_texture, canvas.log
-    )
+    canvas.log[:] = np.where(lat < -floor, rng.uniform(-2.0, -0.5) + floor_texture, canvas.log)
     poster_texture = fractal_noise(canvas.height, width, rng, beta=rng.uniform(1.5, 2.5))
     for _ in range(int(rng.integers(5, 26))):
         p_lon, p_lat = _sphere_point(rng, max_lat=ceiling * 0.8)

@@ -273,6 +273,8 @@ def hot_pixel_events(
     per_pixel = rng.poisson(params.hot_pixel_hz * duration_s, count)
     on_share = rng.uniform(0.0, 1.0, count)
     pix = np.repeat(pixels, per_pixel)
-    return pix, rng.uniform(0.0, duration_s, pix.size), rng.random(pix.size) < np.repeat(
-        on_share, per_pixel
+    return (
+        pix,
+        rng.uniform(0.0, duration_s, pix.size),
+        rng.random(pix.size) < np.repeat(on_share, per_pixel),
     )
