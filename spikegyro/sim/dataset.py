@@ -222,7 +222,7 @@ def _sensor_recording(
         **rec.attrs,
         "sensor": config.sensor,
         "sensor_calib": list(astuple(calib)),  # fx fy cx cy k1 k2 p1 p2 k3, as calib.txt
-        "sensor_events_undistorted": preset.undistort,
+        "events_on_pinhole": preset.undistort,
     }
     return Recording(events=events, gyro=rec.gyro, attrs=attrs)
 
@@ -232,12 +232,23 @@ def sequence_path(out: Path, split: str, index: int) -> Path:
     return Path(out) / split / f"seq_{index:06d}.h5"
 
 
+def _sensor_draws(attrs: Any) -> dict[str, float]:
+    """The drawn ``sensor_*`` scalars of a sequence's attributes (none for the ideal sensor)."""
+    return {
+        k[len("sensor_") :]: float(v)
+        for k, v in attrs.items()
+        if k.startswith("sensor_") and np.ndim(v) == 0 and not isinstance(v, str)
+    }
+
+
 def _summary(rec: Recording) -> dict[str, Any]:
     speed = np.degrees(np.linalg.norm(rec.gyro.omega, axis=1)) if rec.gyro is not None else []
     return {
         "events": len(rec.events),
         "windows": list(rec.attrs["events_per_100ms"]),
         "speed_deg_s": float(np.mean(speed)),
+        "key": f"{rec.attrs['split']}/{int(rec.attrs['index']):06d}",
+        "sensor": _sensor_draws(rec.attrs),
     }
 
 
@@ -248,6 +259,8 @@ def _summary_from_file(path: Path) -> dict[str, Any]:
             "events": int(f["ev_ts"].shape[0]),
             "windows": [int(v) for v in f.attrs["events_per_100ms"]],
             "speed_deg_s": float(speed.mean()),
+            "key": f"{f.attrs['split']}/{int(f.attrs['index']):06d}",
+            "sensor": _sensor_draws(f.attrs),
         }
 
 
@@ -273,7 +286,15 @@ def _statistics(summaries: list[dict[str, Any]]) -> dict[str, Any]:
     if windows.size == 0:
         return {}
     q = np.percentile(windows, [0, 5, 25, 50, 75, 95, 100])
-    return {
+    rate = windows / (WINDOW_US / 1e6) / 1e6  # millions of events per second
+    rate_q = np.percentile(rate, [1, 5, 25, 50, 75, 95, 99])
+    stats: dict[str, Any] = {
+        "events_per_s_millions": {
+            **{f"p{p}": float(v) for p, v in zip((1, 5, 25, 50, 75, 95, 99), rate_q, strict=True)},
+            # Real DAVIS240C rotation recordings (Event Camera Dataset) span 0.2 to 5.6 M/s.
+            "fraction_in_0.2_5.6": float(((rate >= 0.2) & (rate <= 5.6)).mean()),
+            "fraction_below_0.2": float((rate < 0.2).mean()),
+        },
         "events_total": int(sum(s["events"] for s in summaries)),
         "events_per_100ms": {
             "mean": float(windows.mean()),
@@ -288,6 +309,26 @@ def _statistics(summaries: list[dict[str, Any]]) -> dict[str, Any]:
             "fraction_above_800": float((speeds > 800).mean()),
         },
     }
+    draws = [x["sensor"] for x in summaries if x.get("sensor")]
+    if draws:
+        names = sorted(draws[0])
+        table = np.array([[d[n] for n in names] for d in draws])
+        stats["sensor_draws"] = {
+            n: {"min": float(lo), "p50": float(mid), "max": float(hi)}
+            for n, lo, mid, hi in zip(
+                names, *np.percentile(table, [0, 50, 100], axis=0), strict=True
+            )
+        }
+    return stats
+
+
+def _sensor_table(summaries: list[dict[str, Any]]) -> dict[str, Any]:
+    """Every sequence's drawn sensor, as columns and one row per ``split/index``."""
+    rows = {x["key"]: x["sensor"] for x in summaries if x.get("sensor")}
+    if not rows:
+        return {}
+    names = sorted(next(iter(rows.values())))
+    return {"columns": names, "rows": {k: [v[n] for n in names] for k, v in rows.items()}}
 
 
 def _write_meta(out: Path, meta: dict[str, Any]) -> None:
@@ -300,7 +341,9 @@ def _check_resume(out: Path, meta: dict[str, Any]) -> None:
     if not path.exists():
         return
     old = json.loads(path.read_text())
-    if old.get("config") != meta["config"] or old.get("seed") != meta["seed"]:
+    # Datasets made before sensor presets existed were made with the ideal sensor.
+    old_config = {"sensor": "ideal", **old.get("config", {})}
+    if old_config != meta["config"] or old.get("seed") != meta["seed"]:
         raise InputError(
             f"{path}: this folder holds a dataset made with other options or another seed; "
             "choose another --out or delete the folder."
@@ -417,6 +460,8 @@ def generate_dataset(
         if on_sequence is not None:
             on_sequence(done, sequences, summary["events"])
     meta.update(statistics=_statistics(summaries), complete=True)
+    if config.sensor != "ideal":
+        meta["sensor_draws"] = _sensor_table(summaries)
     _write_meta(out, meta)
     return meta
 

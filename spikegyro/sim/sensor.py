@@ -226,10 +226,10 @@ class Photoreceptor:
     """First-order low-pass of log intensity with an intensity-dependent cutoff, over frames.
 
     Between frames the input is linear in time (as ESIM assumes), and the filter
-    τ dy/dt = x − y has the exact solution for a ramp x(t) = a + m t:
-    y(Δt) = b − mτ + (y₀ − a + mτ) e^{−Δt/τ}, with b = a + mΔt. τ = 1 / (2π f_c(I)) uses the
-    intensity of the frame at the end of the interval. The state starts at the first frame
-    (a steady scene).
+    τ dy/dt = x − y has the exact solution for a ramp from a to b over Δt:
+    y(Δt) = b − (b − a) g + (y₀ − a) e, with r = Δt/τ, e = e^{−r} and g = (1 − e)/r (written so
+    that nothing cancels when Δt ≪ τ). τ = 1 / (2π f_c(I)) uses the intensity of the frame at
+    the end of the interval. The state starts at the first frame (a steady scene).
 
     Args:
         first: (P,) log intensity of the first frame, at t = 0.
@@ -250,10 +250,9 @@ class Photoreceptor:
         for k in range(frames.shape[0]):
             b = frames[k]
             dt = float(times_s[k]) - self.t
-            tau = np.float32(self.tau_white) / cutoff_scale(b, self.eps)
-            m_tau = (b - self.x) * (tau / np.float32(dt))
-            decay = np.exp(-np.float32(dt) / tau)
-            self.y = b - m_tau + (self.y - self.x + m_tau) * decay
+            r = np.float32(dt / self.tau_white) * cutoff_scale(b, self.eps)
+            decay = np.exp(-r)
+            self.y = b - (b - self.x) * (-np.expm1(-r) / r) + (self.y - self.x) * decay
             self.x, self.t = b, float(times_s[k])
             out[k] = self.y
         return out
