@@ -90,14 +90,14 @@ def _sphere_point(rng: np.random.Generator, max_lat: float = np.pi / 2) -> tuple
 def sparse_panorama(rng: np.random.Generator, width: int = 1280, name: str = "sparse"):
     """A few sharp dark shapes on a plain, softly shaded background (like ECD ``shapes``).
 
-    40-160 shapes over the sphere (a 62° x 48° view sees about 3-12), radius 2-8°, each
+    20-80 shapes over the sphere (a 62° x 48° view sees about 1-6 whole ones), radius 2-8°, each
     0.5-3 log units darker than the wall (one in five lighter by 0.3-1); the wall's log shading
     has std 0.02-0.15 on scales of tens of degrees.
     """
     canvas = _Canvas(width)
     shading = fractal_noise(canvas.height, width, rng, beta=4.0)
     canvas.log += np.float32(rng.uniform(0.02, 0.15)) * shading
-    for _ in range(int(rng.integers(40, 161))):
+    for _ in range(int(rng.integers(20, 81))):
         lon, lat = _sphere_point(rng)
         radius = np.radians(rng.uniform(2.0, 8.0))
         aspect = rng.uniform(0.5, 1.0)
