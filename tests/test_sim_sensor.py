@@ -192,8 +192,8 @@ def test_preset_draws_stay_in_range_and_its_extreme_lenses_do_not_fold():
     assert isinstance(preset, SensorPreset) and SENSOR_PRESETS["ideal"] is None
     draws = [preset.draw(np.random.default_rng(i)) for i in range(300)]
     mean_c = np.sqrt([d.contrast_on * d.contrast_off for d in draws])
-    assert mean_c.min() >= 0.15 - 1e-9 and mean_c.max() <= 0.75 + 1e-9
-    assert np.median(mean_c) == pytest.approx(np.sqrt(0.15 * 0.75), rel=0.15)  # log-uniform
+    assert mean_c.min() >= 0.1 - 1e-9 and mean_c.max() <= 0.6 + 1e-9
+    assert np.median(mean_c) == pytest.approx(np.sqrt(0.1 * 0.6), rel=0.15)  # log-uniform
     ratios = [d.contrast_on / d.contrast_off for d in draws]
     assert min(ratios) < 0.8 and max(ratios) > 1.25  # ON and OFF are drawn apart
     assert {d.hot_pixels for d in draws} >= {0, 20}

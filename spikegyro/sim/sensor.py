@@ -11,20 +11,21 @@ sequence, which :func:`spikegyro.sim.esim.simulate` applies:
   match those of real data; they train with thresholds from about 0.2 to 1.5 log units, ESIM
   (Rebecq et al., CoRL 2018) and v2e (Hu et al., CVPR Workshops 2021) default to 0.2 to 0.5.
   Following their recipe rather than their numbers, the mean threshold here is log-uniform in
-  [0.15, 0.75]: with our scenes and rotations that puts 100 ms windows at 0.05 to 5 M events/s,
-  the span of real DAVIS240C rotation recordings (0.2 to 5.6 M events/s in the Event Camera
-  Dataset; docs/notes/sensor.md has the measurement), where U(0.2, 1.5) left the median window at
-  0.1 M events/s. ON/OFF differ by a factor log-uniform in [1/1.5, 1.5] (real ON and OFF
-  thresholds are set by separate biases).
+  [0.1, 0.6] (0.1 is about the DAVIS240C's minimum contrast sensitivity, Brandli 2014): with our
+  scenes and rotations that spreads 100 ms windows over the span of real DAVIS240C rotation
+  recordings (0.2 to 5.6 M events/s in the Event Camera Dataset; docs/notes/sensor.md has the
+  measurement), where U(0.2, 1.5) left the median window at 0.1 M events/s. ON/OFF differ by a
+  factor log-uniform in [1/1.5, 1.5] (real ON and OFF thresholds are set by separate biases; the
+  four ECD rotation windows have 42-43 % ON events).
 - **Per-pixel threshold mismatch**, std U(0.02, 0.06) log units: Lichtsteiner et al. (JSSC 2008)
   and Brandli et al. (JSSC 2014) report a 2.1 % contrast mismatch, v2e defaults to 0.03 and its
   'noisy' model to 0.05.
 - **Refractory period**, log-uniform in [10, 1000] µs (v2e's default is 500 µs; the DAVIS
   refractory bias spans µs to ms).
 - **Background activity**: shot noise (random polarity) log-uniform in [0.05, 2] Hz per pixel
-  and leak events (ON) in [0.01, 0.5] Hz per pixel (v2e: leak 0.01 to 0.1 Hz, shot noise up to
-  5 Hz in its 'noisy' model; Brandli 2014 measures about 0.1 Hz of background activity per
-  pixel in room light).
+  and leak events (ON) in [0.01, 0.5] Hz per pixel (v2e: leak 0.01 Hz by default and 0.1 Hz in
+  its 'noisy' model, shot noise 0.001 Hz by default and 5 Hz in 'noisy'; the DVS/DAVIS papers
+  report background activity of the order of 0.1 Hz per pixel at room temperature).
 - **Hot pixels**: 0 to 20 pixels firing at a rate log-uniform in [20, 1000] Hz (Stoffregen 2020
   adds such pixels to their training data; real DAVIS240C recordings show a handful).
 - **Photoreceptor bandwidth**: a first-order low-pass on log intensity whose cutoff scales with
@@ -153,7 +154,7 @@ class SensorPreset:
     probabilities of the scene kinds: sparse shapes, office, photograph, procedural.
     """
 
-    contrast_log: Range = (0.15, 0.75)
+    contrast_log: Range = (0.1, 0.6)
     on_off_ratio_log: Range = (1 / 1.5, 1.5)
     mismatch_std: Range = (0.02, 0.06)
     refractory_us_log: Range = (10.0, 1000.0)
