@@ -244,3 +244,25 @@ def test_davis240c_dataset_records_its_sensors_and_is_a_pure_function_of_the_see
     again = simulate_sequence(TINY, 0, seed=2, split="val")
     np.testing.assert_array_equal(again.events.t, rec.events.t)
     np.testing.assert_array_equal(again.events.x, rec.events.x)
+
+
+def _flat_and_sharp(pano: Panorama) -> tuple[float, float]:
+    """Shares of texels whose largest log step to a neighbour is < 0.01 and > 0.3."""
+    log = np.log(pano.intensity)
+    step = np.maximum(np.abs(np.diff(log, axis=1))[:-1], np.abs(np.diff(log, axis=0))[:, :-1])
+    return float((step < 0.01).mean()), float((step > 0.3).mean())
+
+
+def test_indoor_scenes_are_mostly_uniform_with_sharp_features():
+    from spikegyro.sim.indoor import office_panorama, sparse_panorama
+    from spikegyro.sim.procedural import procedural_panorama
+
+    for seed in range(3):
+        sparse = _flat_and_sharp(sparse_panorama(np.random.default_rng(seed), 1024))
+        office = _flat_and_sharp(office_panorama(np.random.default_rng(seed), 1024))
+        textured = _flat_and_sharp(procedural_panorama(np.random.default_rng(seed), 1024))
+        assert sparse[0] > 0.95 and sparse[1] > 0.002  # a plain wall with sharp shapes
+        assert 0.4 < office[0] < 0.9 and office[1] > 0.01  # walls plus textured posters
+        assert textured[0] < 0.5  # the old procedural scenes have no large uniform areas
+    a = sparse_panorama(np.random.default_rng(9), 512).intensity
+    np.testing.assert_array_equal(a, sparse_panorama(np.random.default_rng(9), 512).intensity)
