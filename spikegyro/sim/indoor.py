@@ -114,10 +114,11 @@ def office_panorama(rng: np.random.Generator, width: int = 1280, name: str = "of
     """An office: uniform walls with corners, ceiling, textured floor, posters, boxes, shelves.
 
     Walls: 3-8 segments, each a uniform log level in [-1.5, 0]; ceiling above 17-40° of
-    elevation, floor below; the floor carries 1/f texture. 5-25 posters (5-30° wide) show
+    elevation, floor below; the floor carries 1/f texture. 10-40 posters (6-40° wide) show
     pixel-scale 1/f texture (β in [1.5, 2.5], log std 0.3-1.2), 5-25 boxes (4-20° wide) have a
-    front and a differently lit top, and 5-30 thin straight edges (shelves, frames) cross the
-    walls. A smooth 1/f illumination (log std up to 0.3) lies over everything.
+    printed front (the same texture, log std up to 0.8) and a differently lit top, and 5-30 thin
+    straight edges (shelves, frames) cross the walls. A smooth 1/f illumination (log std up to
+    0.3) lies over everything.
     """
     canvas = _Canvas(width)
     lon, lat = canvas.lon[None, :], canvas.lat[:, None]
@@ -131,9 +132,9 @@ def office_panorama(rng: np.random.Generator, width: int = 1280, name: str = "of
     )
     canvas.log[:] = np.where(lat < -floor, rng.uniform(-2.0, -0.5) + floor_texture, canvas.log)
     poster_texture = fractal_noise(canvas.height, width, rng, beta=rng.uniform(1.5, 2.5))
-    for _ in range(int(rng.integers(5, 26))):
+    for _ in range(int(rng.integers(10, 41))):
         p_lon, p_lat = _sphere_point(rng, max_lat=ceiling * 0.8)
-        half_w = np.radians(rng.uniform(2.5, 15.0))
+        half_w = np.radians(rng.uniform(3.0, 20.0))
         content = rng.uniform(-1.5, 0.5) + rng.uniform(0.3, 1.2) * poster_texture
         canvas.paint(p_lon, p_lat, half_w, half_w * rng.uniform(0.6, 1.5), content)
     for _ in range(int(rng.integers(5, 26))):
@@ -141,7 +142,8 @@ def office_panorama(rng: np.random.Generator, width: int = 1280, name: str = "of
         half_w = np.radians(rng.uniform(2.0, 10.0))
         half_h = half_w * rng.uniform(0.4, 1.2)
         b_lat = -floor + half_h * rng.uniform(0.0, 1.5)
-        canvas.paint(b_lon, b_lat, half_w, half_h, rng.uniform(-2.5, 0.0))
+        print_ = rng.uniform(0.0, 0.8) * poster_texture  # printed cardboard
+        canvas.paint(b_lon, b_lat, half_w, half_h, rng.uniform(-2.5, 0.0) + print_)
         top = half_h * rng.uniform(0.15, 0.35)
         canvas.paint(b_lon, b_lat + half_h - top, half_w, top, rng.uniform(-2.0, 0.3))
     for _ in range(int(rng.integers(5, 31))):
