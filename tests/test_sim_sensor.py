@@ -262,7 +262,7 @@ def test_indoor_scenes_are_mostly_uniform_with_sharp_features():
         office = _flat_and_sharp(office_panorama(np.random.default_rng(seed), 1024))
         textured = _flat_and_sharp(procedural_panorama(np.random.default_rng(seed), 1024))
         assert sparse[0] > 0.95 and sparse[1] > 0.002  # a plain wall with sharp shapes
-        assert 0.4 < office[0] < 0.9 and office[1] > 0.01  # walls plus textured posters
+        assert 0.3 < office[0] < 0.9 and office[1] > 0.03  # walls plus textured posters
         assert textured[0] < 0.5  # the old procedural scenes have no large uniform areas
     a = sparse_panorama(np.random.default_rng(9), 512).intensity
     np.testing.assert_array_equal(a, sparse_panorama(np.random.default_rng(9), 512).intensity)
