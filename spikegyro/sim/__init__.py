@@ -52,6 +52,7 @@ from spikegyro.sim.dataset import SimConfig, generate_dataset, simulate_sequence
 from spikegyro.sim.esim import EventSimConfig, frame_times, simulate
 from spikegyro.sim.panorama import Panorama, load_panorama, mirror_panorama
 from spikegyro.sim.render import Renderer, render
+from spikegyro.sim.sensor import SENSOR_PRESETS, SensorParams, SensorPreset
 from spikegyro.sim.trajectory import (
     Trajectory,
     TrajectoryConfig,
@@ -62,10 +63,13 @@ from spikegyro.sim.trajectory import (
 )
 
 __all__ = [
+    "SENSOR_PRESETS",
     "Camera",
     "EventSimConfig",
     "Panorama",
     "Renderer",
+    "SensorParams",
+    "SensorPreset",
     "SimConfig",
     "Trajectory",
     "TrajectoryConfig",
