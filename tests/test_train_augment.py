@@ -22,10 +22,12 @@ from spikegyro.train.augment import (
     HORIZONTAL_MIRROR,
     VERTICAL_MIRROR,
     AugmentConfig,
+    add_noise_events,
     flip_horizontal,
     flip_vertical,
     mirror_omega,
     reverse_time,
+    thin,
 )
 from spikegyro.train.data import InputSpec, Window, encode_window, window_at
 
@@ -158,3 +160,75 @@ def test_random_augmentation_applies_each_transform_independently(original):
     off = AugmentConfig(0.0, 0.0, 0.0)
     assert not off.enabled
     assert off(original, rng) is original
+
+
+def _same_events(a: Window, b: Window) -> None:
+    for name in ("x", "y", "t", "p"):
+        np.testing.assert_array_equal(getattr(a.events, name), getattr(b.events, name))
+    np.testing.assert_array_equal(a.omega, b.omega)
+
+
+def test_event_drop_commutes_with_the_mirrors_and_time_inversion(original):
+    keep = np.random.default_rng(3).random(len(original.events)) < 0.4
+    for op in (flip_horizontal, flip_vertical):
+        _same_events(thin(op(original), keep), op(thin(original, keep)))
+    # Time inversion reverses the stream, so the same events are the reversed mask.
+    _same_events(thin(reverse_time(original), keep[::-1]), reverse_time(thin(original, keep)))
+    # Labels are untouched and the kept events are a subset in order.
+    thinned = thin(original, keep)
+    np.testing.assert_array_equal(thinned.omega, original.omega)
+    np.testing.assert_array_equal(thinned.events.t, original.events.t[keep])
+
+
+def test_event_drop_keeps_a_uniform_share_per_window_and_is_off_by_default(original):
+    from scipy.stats import kstest
+
+    n = len(original.events)
+    config = AugmentConfig(0.0, 0.0, 0.0, keep_min=0.2)
+    assert config.enabled and not AugmentConfig(0.0, 0.0, 0.0).enabled
+    rng = np.random.default_rng(4)
+    shares = np.array([len(config(original, rng).events) / n for _ in range(300)])
+    # Per-window share ~ U(0.2, 1) (binomial spread at this n is below 0.01).
+    assert kstest(shares, "uniform", args=(0.2, 0.8)).pvalue > 1e-3
+    assert shares.min() >= 0.18 and shares.max() <= 1.0
+    # The paper's augmentation draws exactly what it drew before density augmentation existed.
+    a, b = np.random.default_rng(5), np.random.default_rng(5)
+    _same_events(AugmentConfig()(original, a), AugmentConfig(keep_min=1.0)(original, b))
+    assert a.random() == b.random()
+
+
+def test_noise_events_arrive_at_their_rate_inside_the_window(original):
+    window = replace(original, events=original.events[:0])
+    rng = np.random.default_rng(6)
+    rate = 50.0
+    counts = [len(add_noise_events(window, rate, rng).events) for _ in range(50)]
+    expected = rate * CAMERA.width * CAMERA.height * WINDOW_MS / 1000
+    assert abs(np.mean(counts) - expected) < 4 * np.sqrt(expected / 50)
+    noisy = add_noise_events(original, rate, rng)
+    ev = noisy.events
+    ev.validate()
+    assert ev.t.min() >= original.t_start_us and ev.t.max() < original.t_end_us
+    added = len(ev) - len(original.events)
+    assert (
+        added > 1000 and abs((int(ev.p.sum()) - int(original.events.p.sum())) / added - 0.5) < 0.1
+    )
+    np.testing.assert_array_equal(noisy.omega, original.omega)
+    # Through AugmentConfig the rate is U(0, noise_hz) per window: mean count half the maximum.
+    config = AugmentConfig(0.0, 0.0, 0.0, noise_hz=rate)
+    counts = [len(config(window, rng).events) for _ in range(200)]
+    assert np.mean(counts) == pytest.approx(expected / 2, rel=0.15)
+
+
+def test_presets_turn_density_augmentation_on_only_where_asked():
+    from spikegyro.errors import InputError
+    from spikegyro.train.presets import resolve_config
+
+    paper = AugmentConfig.of(resolve_config("paper", {"data": "d"}))
+    assert (paper.keep_min, paper.noise_hz) == (1.0, 0.0)
+    sim2real = resolve_config("sim2real", {})
+    assert sim2real.online and sim2real.sim == {"sensor": "davis240c"}
+    assert AugmentConfig.of(sim2real).keep_min == 0.2
+    flag = resolve_config("paper", {"data": "d", "event_keep_min": 0.5, "noise_events_hz": 2.0})
+    assert AugmentConfig.of(flag) == AugmentConfig(keep_min=0.5, noise_hz=2.0)
+    with pytest.raises(InputError, match="event-keep-min"):
+        resolve_config("paper", {"data": "d", "event_keep_min": 1.5})

@@ -40,7 +40,11 @@ about 80 k and a 5th percentile of about 17 k at 240x180 (see BENCHMARKS.md).
 Sensor model defaults (:class:`EventSimConfig`): thresholds ~ N(0.45, 0.05) per sequence (ON and
 OFF drawn separately, dataset level), per-pixel mismatch std 0.03, per-crossing noise std 0.01,
 clamped at 0.01; refractory period, shot noise and leak events off. Frames are rendered so no
-pixel moves more than 0.5 px between them, at 500 Hz or faster.
+pixel moves more than 0.5 px between them, at 500 Hz or faster. That is the ``ideal`` sensor
+preset; ``SimConfig(sensor="davis240c")`` (``spikegyro simulate --sensor davis240c``) draws a real
+sensor per sequence instead (wide ON/OFF thresholds, mismatch, refractory period, background
+activity, hot pixels, photoreceptor bandwidth, lens distortion; :mod:`spikegyro.sim.sensor`) and
+mixes in sparse and office scenes (:mod:`spikegyro.sim.indoor`).
 """
 
 from spikegyro.sim.camera import Camera
@@ -48,6 +52,7 @@ from spikegyro.sim.dataset import SimConfig, generate_dataset, simulate_sequence
 from spikegyro.sim.esim import EventSimConfig, frame_times, simulate
 from spikegyro.sim.panorama import Panorama, load_panorama, mirror_panorama
 from spikegyro.sim.render import Renderer, render
+from spikegyro.sim.sensor import SENSOR_PRESETS, SensorParams, SensorPreset
 from spikegyro.sim.trajectory import (
     Trajectory,
     TrajectoryConfig,
@@ -58,10 +63,13 @@ from spikegyro.sim.trajectory import (
 )
 
 __all__ = [
+    "SENSOR_PRESETS",
     "Camera",
     "EventSimConfig",
     "Panorama",
     "Renderer",
+    "SensorParams",
+    "SensorPreset",
     "SimConfig",
     "Trajectory",
     "TrajectoryConfig",

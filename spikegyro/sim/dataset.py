@@ -15,6 +15,13 @@ A fraction of sequences (``procedural_fraction``) uses a procedural panorama gen
 sequence's own seed stream, which is distinct for every (split, index), so no procedural scene is
 shared across splits. Photographs get fine 1/f detail (``detail_strength``) and every sequence
 a uniformly random start orientation, i.e. a random orientation of the panorama.
+
+Sensor presets (``SimConfig.sensor``, :mod:`spikegyro.sim.sensor`): ``ideal`` is the paper's
+simulator and gives exactly the files it always gave; ``davis240c`` draws a real sensor per
+sequence (thresholds, mismatch, refractory period, background activity, hot pixels,
+photoreceptor bandwidth, lens), mixes in sparse and office scenes (:mod:`spikegyro.sim.indoor`)
+and maps the distorted events onto the pinhole camera as ``spikegyro predict --calib`` does. The
+drawn values are in each file's ``sensor_*`` attributes and in meta.json's ``sensor_draws``.
 """
 
 from __future__ import annotations
@@ -23,7 +30,7 @@ import json
 import tempfile
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, astuple, dataclass, field, replace
 from functools import lru_cache
 from multiprocessing import get_context
 from pathlib import Path
@@ -34,10 +41,12 @@ import numpy as np
 
 from spikegyro import __version__
 from spikegyro.errors import InputError
+from spikegyro.events.calib import PinholeCamera
 from spikegyro.events.core import GyroTrace, Recording
 from spikegyro.events.io import atomic_path, read_recording, write_recording
 from spikegyro.sim.camera import Camera
 from spikegyro.sim.esim import EventSimConfig, simulate
+from spikegyro.sim.indoor import office_panorama, sparse_panorama
 from spikegyro.sim.panorama import (
     Panorama,
     bundled_panorama_paths,
@@ -46,6 +55,7 @@ from spikegyro.sim.panorama import (
     split_panoramas,
 )
 from spikegyro.sim.procedural import add_detail, panorama_width, procedural_panorama
+from spikegyro.sim.sensor import SensorParams, SensorPreset, sensor_preset
 from spikegyro.sim.trajectory import TrajectoryConfig, random_trajectory
 
 SPLITS = ("train", "val", "test")
@@ -67,6 +77,8 @@ class SimConfig:
         procedural_fraction: share of sequences on procedural panoramas.
         detail_strength: log-intensity std of the smooth texture added to photographs.
         val_fraction, test_fraction: share of sequences (and of folder panoramas) per split.
+        sensor: sensor preset, ``ideal`` (the settings above) or ``davis240c`` (drawn per
+            sequence; replaces the thresholds, noise, scene mix and detail strength above).
     """
 
     duration_ms: int = 500
@@ -80,6 +92,7 @@ class SimConfig:
     detail_strength: float = 0.4
     val_fraction: float = 0.05
     test_fraction: float = 0.05
+    sensor: str = "ideal"
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-serialisable dict (round-trips through :meth:`from_dict`)."""
@@ -133,20 +146,31 @@ def simulate_sequence(config: SimConfig, index: int, seed: int, split: str = "tr
     """
     if split not in SPLITS:
         raise InputError(f"split '{split}': must be one of {', '.join(SPLITS)}.")
+    preset = sensor_preset(config.sensor)
     rng = sequence_rng(seed, split, index)
-    floor = config.events.min_contrast
-    c_on, c_off = np.maximum(rng.normal(config.contrast_mean, config.contrast_std, 2), floor)
     photos = _splits(config)[split]
     width = panorama_width(config.camera)
-    if not photos or rng.random() < config.procedural_fraction:
-        panorama = procedural_panorama(rng, width, name=f"procedural/{split}/{index}")
+    sensor = None
+    if preset is None:
+        floor = config.events.min_contrast
+        c_on, c_off = np.maximum(rng.normal(config.contrast_mean, config.contrast_std, 2), floor)
+        if not photos or rng.random() < config.procedural_fraction:
+            panorama = procedural_panorama(rng, width, name=f"procedural/{split}/{index}")
+        else:
+            photo = _photo(str(photos[int(rng.integers(len(photos)))]))
+            panorama = add_detail(photo, rng, config.detail_strength, width)
     else:
-        photo = _photo(str(photos[int(rng.integers(len(photos)))]))
-        panorama = add_detail(photo, rng, config.detail_strength, width)
+        sensor = preset.draw(rng, config.camera.width / 240)
+        c_on, c_off = sensor.contrast_on, sensor.contrast_off
+        panorama = _sensor_scene(preset, rng, photos, width, f"{split}/{index}")
     duration_s = config.duration_ms / 1000.0
     trajectory = random_trajectory(rng, duration_s, config.trajectory)
     events_config = replace(config.events, contrast_on=float(c_on), contrast_off=float(c_off))
-    rec = simulate(panorama, trajectory, config.camera, events_config, rng, duration_s)
+    rec = simulate(
+        panorama, trajectory, config.camera, events_config, rng, duration_s, sensor=sensor
+    )
+    if sensor is not None:
+        rec = _sensor_recording(rec, config, preset, sensor)
     n_windows = config.duration_ms // 100  # whole 100 ms windows only
     t = rec.events.t
     windows = np.bincount(t[t < n_windows * WINDOW_US] // WINDOW_US, minlength=n_windows)
@@ -166,9 +190,55 @@ def simulate_sequence(config: SimConfig, index: int, seed: int, split: str = "tr
     return Recording(events=rec.events, gyro=rec.gyro, attrs=attrs)
 
 
+def _sensor_scene(
+    preset: SensorPreset, rng: np.random.Generator, photos: list[Path], width: int, name: str
+) -> Panorama:
+    """A scene of the preset's mix: sparse shapes, office, photograph or procedural."""
+    weights = np.array(preset.scenes, dtype=np.float64)
+    if not photos:
+        weights[2] = 0.0
+    kind = int(rng.choice(4, p=weights / weights.sum()))
+    if kind == 0:
+        return sparse_panorama(rng, width, name=f"sparse/{name}")
+    if kind == 1:
+        return office_panorama(rng, width, name=f"office/{name}")
+    if kind == 2:
+        photo = _photo(str(photos[int(rng.integers(len(photos)))]))
+        return add_detail(photo, rng, rng.uniform(*preset.detail_strength), width)
+    return procedural_panorama(rng, width, name=f"procedural/{name}")
+
+
+def _sensor_recording(
+    rec: Recording, config: SimConfig, preset: SensorPreset, sensor: SensorParams
+) -> Recording:
+    """Events of a drawn sensor, mapped onto the ideal pinhole if the preset says so."""
+    calib = sensor.calibration(config.camera)
+    events = rec.events
+    if preset.undistort:
+        cam = config.camera
+        target = PinholeCamera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
+        events = calib.map_events(events, target)
+    attrs = {
+        **rec.attrs,
+        "sensor": config.sensor,
+        "sensor_calib": list(astuple(calib)),  # fx fy cx cy k1 k2 p1 p2 k3, as calib.txt
+        "events_on_pinhole": preset.undistort,
+    }
+    return Recording(events=events, gyro=rec.gyro, attrs=attrs)
+
+
 def sequence_path(out: Path, split: str, index: int) -> Path:
     """Where sequence ``index`` of ``split`` lives."""
     return Path(out) / split / f"seq_{index:06d}.h5"
+
+
+def _sensor_draws(attrs: Any) -> dict[str, float]:
+    """The drawn ``sensor_*`` scalars of a sequence's attributes (none for the ideal sensor)."""
+    return {
+        k[len("sensor_") :]: float(v)
+        for k, v in attrs.items()
+        if k.startswith("sensor_") and np.ndim(v) == 0 and not isinstance(v, str)
+    }
 
 
 def _summary(rec: Recording) -> dict[str, Any]:
@@ -177,6 +247,8 @@ def _summary(rec: Recording) -> dict[str, Any]:
         "events": len(rec.events),
         "windows": list(rec.attrs["events_per_100ms"]),
         "speed_deg_s": float(np.mean(speed)),
+        "key": f"{rec.attrs['split']}/{int(rec.attrs['index']):06d}",
+        "sensor": _sensor_draws(rec.attrs),
     }
 
 
@@ -187,6 +259,8 @@ def _summary_from_file(path: Path) -> dict[str, Any]:
             "events": int(f["ev_ts"].shape[0]),
             "windows": [int(v) for v in f.attrs["events_per_100ms"]],
             "speed_deg_s": float(speed.mean()),
+            "key": f"{f.attrs['split']}/{int(f.attrs['index']):06d}",
+            "sensor": _sensor_draws(f.attrs),
         }
 
 
@@ -212,7 +286,15 @@ def _statistics(summaries: list[dict[str, Any]]) -> dict[str, Any]:
     if windows.size == 0:
         return {}
     q = np.percentile(windows, [0, 5, 25, 50, 75, 95, 100])
-    return {
+    rate = windows / (WINDOW_US / 1e6) / 1e6  # millions of events per second
+    rate_q = np.percentile(rate, [1, 5, 25, 50, 75, 95, 99])
+    stats: dict[str, Any] = {
+        "events_per_s_millions": {
+            **{f"p{p}": float(v) for p, v in zip((1, 5, 25, 50, 75, 95, 99), rate_q, strict=True)},
+            # Real DAVIS240C rotation recordings (Event Camera Dataset) span 0.2 to 5.6 M/s.
+            "fraction_in_0.2_5.6": float(((rate >= 0.2) & (rate <= 5.6)).mean()),
+            "fraction_below_0.2": float((rate < 0.2).mean()),
+        },
         "events_total": int(sum(s["events"] for s in summaries)),
         "events_per_100ms": {
             "mean": float(windows.mean()),
@@ -227,6 +309,26 @@ def _statistics(summaries: list[dict[str, Any]]) -> dict[str, Any]:
             "fraction_above_800": float((speeds > 800).mean()),
         },
     }
+    draws = [x["sensor"] for x in summaries if x.get("sensor")]
+    if draws:
+        names = sorted(draws[0])
+        table = np.array([[d[n] for n in names] for d in draws])
+        stats["sensor_draws"] = {
+            n: {"min": float(lo), "p50": float(mid), "max": float(hi)}
+            for n, lo, mid, hi in zip(
+                names, *np.percentile(table, [0, 50, 100], axis=0), strict=True
+            )
+        }
+    return stats
+
+
+def _sensor_table(summaries: list[dict[str, Any]]) -> dict[str, Any]:
+    """Every sequence's drawn sensor, as columns and one row per ``split/index``."""
+    rows = {x["key"]: x["sensor"] for x in summaries if x.get("sensor")}
+    if not rows:
+        return {}
+    names = sorted(next(iter(rows.values())))
+    return {"columns": names, "rows": {k: [v[n] for n in names] for k, v in rows.items()}}
 
 
 def _write_meta(out: Path, meta: dict[str, Any]) -> None:
@@ -239,7 +341,9 @@ def _check_resume(out: Path, meta: dict[str, Any]) -> None:
     if not path.exists():
         return
     old = json.loads(path.read_text())
-    if old.get("config") != meta["config"] or old.get("seed") != meta["seed"]:
+    # Datasets made before sensor presets existed were made with the ideal sensor.
+    old_config = {"sensor": "ideal", **old.get("config", {})}
+    if old_config != meta["config"] or old.get("seed") != meta["seed"]:
         raise InputError(
             f"{path}: this folder holds a dataset made with other options or another seed; "
             "choose another --out or delete the folder."
@@ -356,6 +460,8 @@ def generate_dataset(
         if on_sequence is not None:
             on_sequence(done, sequences, summary["events"])
     meta.update(statistics=_statistics(summaries), complete=True)
+    if config.sensor != "ideal":
+        meta["sensor_draws"] = _sensor_table(summaries)
     _write_meta(out, meta)
     return meta
 

@@ -15,7 +15,8 @@ sigma), and per-crossing noise (redrawn after every event of that pixel), all cl
 ``min_contrast``. Optional sensor effects, off by default: a refractory period (events closer
 than it to the previous event of the same pixel are dropped, the reference still moves), shot
 noise (Poisson events of random polarity) and leak events (Poisson ON events), both in events
-per pixel per second.
+per pixel per second. A :class:`~spikegyro.sim.sensor.SensorParams` passed to :func:`simulate`
+sets these and adds hot pixels, the photoreceptor's low-pass and a distorted lens.
 """
 
 from __future__ import annotations
@@ -28,6 +29,13 @@ from spikegyro.events.core import EventArray, GyroTrace, Recording
 from spikegyro.sim.camera import Camera
 from spikegyro.sim.panorama import Panorama
 from spikegyro.sim.render import Renderer
+from spikegyro.sim.sensor import (
+    Photoreceptor,
+    SensorParams,
+    hot_pixel_events,
+    sensor_camera,
+    sensor_rays,
+)
 from spikegyro.sim.trajectory import Trajectory
 
 
@@ -208,6 +216,7 @@ def simulate(
     rng: np.random.Generator | None = None,
     duration_s: float | None = None,
     renderer: Renderer | None = None,
+    sensor: SensorParams | None = None,
 ) -> Recording:
     """Simulate the events of ``camera`` rotating along ``trajectory`` inside ``panorama``.
 
@@ -218,7 +227,12 @@ def simulate(
         config: the sensor model (default :class:`EventSimConfig`).
         rng: randomness for thresholds and noise (default: seed 0).
         duration_s: simulated time in seconds.
-        renderer: a prebuilt renderer for this panorama and camera (saves the prefilter).
+        renderer: a prebuilt renderer for this panorama and camera (saves the prefilter); with
+            ``sensor``, it must render through the sensor's lens (:func:`sensor_rays`).
+        sensor: a drawn real sensor (see :mod:`spikegyro.sim.sensor`): replaces the thresholds,
+            mismatch, refractory period and noise rates of ``config``, adds hot pixels and the
+            photoreceptor low-pass, and images the scene through its distorted lens, so events
+            are at the sensor's (distorted) pixel positions; None: the ideal sensor.
 
     Returns:
         A :class:`Recording`: events sorted by t (µs, from 0), ground-truth ω at 1 kHz with
@@ -228,18 +242,34 @@ def simulate(
     config = config or EventSimConfig()
     rng = rng if rng is not None else np.random.default_rng(0)
     duration_s = trajectory.duration_s if duration_s is None else float(duration_s)
+    optics = camera
+    if sensor is not None:
+        config = sensor.event_config(config)
+        calib = sensor.calibration(camera)
+        optics = sensor_camera(calib, camera.width, camera.height)
+        if renderer is None:
+            rays = sensor_rays(calib, camera.width, camera.height)
+            renderer = Renderer(panorama, camera, config.eps, rays)
     renderer = renderer or Renderer(panorama, camera, config.eps)
     times = frame_times(
-        trajectory, camera, duration_s, config.max_px_per_frame, config.min_frame_rate_hz
+        trajectory, optics, duration_s, config.max_px_per_frame, config.min_frame_rate_hz
     )
     first = renderer.render_log(trajectory.rotation_at(times[:1])).reshape(-1)
     gen = _EventGenerator(first, config, rng)
+    lowpass = None
+    if sensor is not None and sensor.cutoff_hz > 0:
+        lowpass = Photoreceptor(first, sensor.cutoff_hz, config.eps)
     for i in range(1, times.size, config.chunk_frames):
         chunk = times[i : i + config.chunk_frames]
         frames = renderer.render_log(trajectory.rotation_at(chunk)).reshape(chunk.size, -1)
-        gen.push(frames, chunk)
+        gen.push(frames if lowpass is None else lowpass(frames, chunk), chunk)
     pix, t_us, pol = gen.collect()
     noise_pix, noise_t, noise_pol = _noise_events(config, first.size, duration_s, rng)
+    if sensor is not None:
+        hot_pix, hot_t, hot_pol = hot_pixel_events(sensor, first.size, duration_s, rng)
+        noise_pix = np.concatenate([noise_pix, hot_pix])
+        noise_t = np.concatenate([noise_t, hot_t])
+        noise_pol = np.concatenate([noise_pol, hot_pol])
     if noise_pix.size:
         pix, pol = np.concatenate([pix, noise_pix]), np.concatenate([pol, noise_pol])
         t_us = np.concatenate([t_us, np.rint(noise_t * 1e6).astype(np.int64)])
@@ -257,5 +287,6 @@ def simulate(
         "scene": panorama.name,
         "frames": int(times.size),
         **{f"esim_{k}": v for k, v in asdict(config).items()},
+        **({} if sensor is None else sensor.attrs()),
     }
     return Recording(events=events, gyro=gyro, attrs=attrs)

@@ -68,7 +68,7 @@ def random_shapes(height: int, width: int, rng: np.random.Generator, count: int)
     return layer
 
 
-def _to_intensity(log_image: np.ndarray) -> np.ndarray:
+def to_intensity(log_image: np.ndarray) -> np.ndarray:
     """exp of a log image, scaled so its brightest pixel is 1 (like a normalised photograph)."""
     return np.exp(log_image - log_image.max()).astype(np.float32)
 
@@ -83,7 +83,7 @@ def procedural_panorama(rng: np.random.Generator, width: int = 1280, name: str =
     texture = fractal_noise(height, width, rng, beta=rng.uniform(3.0, 4.0))
     log_image = rng.uniform(0.4, 1.0) * texture
     log_image += random_shapes(height, width, rng, int(rng.integers(20, 81)))
-    return Panorama(_to_intensity(log_image), name)
+    return Panorama(to_intensity(log_image), name)
 
 
 def add_detail(

@@ -46,9 +46,17 @@ class Renderer:
         panorama: the scene.
         camera: intrinsics and resolution.
         eps: offset of the log, L = log(eps + I).
+        rays: unit viewing rays (3, height * width) of the pixels, row-major; default the
+            camera's pinhole rays (a distorted lens gives others, see :mod:`spikegyro.sim.sensor`).
     """
 
-    def __init__(self, panorama: Panorama, camera: Camera, eps: float = 1e-3) -> None:
+    def __init__(
+        self,
+        panorama: Panorama,
+        camera: Camera,
+        eps: float = 1e-3,
+        rays: np.ndarray | None = None,
+    ) -> None:
         self.camera = camera
         log_img = np.log(eps + prefilter(panorama.intensity, camera)).astype(np.float32)
         w = log_img.shape[1]
@@ -59,7 +67,8 @@ class Renderer:
         self._scale = np.float32([w / ((w + 2) * np.pi), 2.0 / np.pi])
         # Shrunk by 2e-6 so float32 rounding can never push |d_y| past 1 (arcsin would give NaN);
         # the latitude error this causes is below 0.12° within 0.12° of a pole, nil elsewhere.
-        self._rays = (camera.rays * (1.0 - 2e-6)).astype(np.float32)
+        rays = camera.rays if rays is None else np.asarray(rays, dtype=np.float64)
+        self._rays = (rays * (1.0 - 2e-6)).astype(np.float32)
 
     def render_log(self, rotations: np.ndarray) -> np.ndarray:
         """Log intensity views for camera-to-world ``rotations`` (K, 3, 3) → (K, height, width)."""

@@ -13,11 +13,22 @@ brightness change reverses its sign, so ON and OFF swap. Event times map t -> t0
 (µs) to stay inside [t0, t1) and keep the 1 ms bins aligned (bin k <-> bin T-1-k). The label of
 new bin k is ω' at its end τ = k+1 ms, i.e. -ω(t0 + T - k - 1 ms): the old label of bin T-k-2,
 or -ω(t0) for the last bin.
+
+Event density. A real DAVIS240C gives anything from 0.2 to 5.6 M events/s in the Event Camera
+Dataset's rotation sequences, and an SNN trained on dense simulated windows degrades on sparse
+ones (keeping 35 % of the events of simulated test windows raised SNN-6's error from 0.18 to
+0.28; 10 % to 0.66). :func:`thin` keeps a random share of a window's events; the share is drawn
+per window, U(keep_min, 1). :func:`add_noise_events` adds background activity: uniform events of
+random polarity at a per-pixel rate. Neither changes the labels: the motion is the same, only
+the sensor's sampling of it differs. Thinning keeps events by their position in the stream, so
+it commutes with the mirrors (which keep the order) and, with the mask reversed, with time
+inversion (which reverses it).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -76,13 +87,63 @@ def reverse_time(window: Window) -> Window:
     )
 
 
+def thin(window: Window, keep: np.ndarray) -> Window:
+    """The window with only the events where the boolean mask ``keep`` (N,) is True."""
+    return replace(window, events=window.events[np.asarray(keep, dtype=bool)])
+
+
+def add_noise_events(window: Window, rate_hz: float, rng: np.random.Generator) -> Window:
+    """Add Poisson background events: ``rate_hz`` per pixel per second, uniform in the window.
+
+    Pixels and times (µs in [t_start, t_end)) are uniform, polarities fair coins; the merged
+    stream stays sorted by time (the original events first among equal times).
+    """
+    ev = window.events
+    duration_s = (window.t_end_us - window.t_start_us) / 1e6
+    n = int(rng.poisson(rate_hz * ev.width * ev.height * duration_s))
+    if n == 0:
+        return window
+    t = np.concatenate([ev.t, rng.integers(window.t_start_us, window.t_end_us, n)])
+    order = np.argsort(t, kind="stable")
+    merged = EventArray.from_arrays(
+        np.concatenate([ev.x, rng.integers(0, ev.width, n)])[order],
+        np.concatenate([ev.y, rng.integers(0, ev.height, n)])[order],
+        t[order],
+        np.concatenate([ev.p, rng.integers(0, 2, n)])[order],
+        ev.width,
+        ev.height,
+        validate=False,
+    )
+    return replace(window, events=merged)
+
+
 @dataclass(frozen=True)
 class AugmentConfig:
-    """Probability of each augmentation (the paper: random flips and time inversion)."""
+    """Probability of each augmentation (the paper: random flips and time inversion), and the
+    event-density augmentation (off by default).
+
+    Attributes:
+        hflip, vflip, time_reverse: probabilities.
+        keep_min: each window keeps a share U(keep_min, 1) of its events (1 = off).
+        noise_hz: each window gains background events at a per-pixel rate U(0, noise_hz) Hz.
+    """
 
     hflip: float = 0.5
     vflip: float = 0.5
     time_reverse: float = 0.5
+    keep_min: float = 1.0
+    noise_hz: float = 0.0
+
+    @classmethod
+    def of(cls, config: Any) -> AugmentConfig:
+        """The augmentation a :class:`~spikegyro.train.presets.TrainConfig` asks for."""
+        return cls(
+            config.hflip,
+            config.vflip,
+            config.time_reverse,
+            config.event_keep_min,
+            config.noise_events_hz,
+        )
 
     def __call__(self, window: Window, rng: np.random.Generator) -> Window:
         """Apply each augmentation independently with its probability."""
@@ -93,8 +154,15 @@ class AugmentConfig:
             window = flip_vertical(window)
         if draws[2] < self.time_reverse:
             window = reverse_time(window)
+        # Drawn only when on, so the paper's augmentation keeps its random stream.
+        if self.keep_min < 1.0:
+            keep = rng.uniform(self.keep_min, 1.0)
+            window = thin(window, rng.random(len(window.events)) < keep)
+        if self.noise_hz > 0:
+            window = add_noise_events(window, rng.uniform(0.0, self.noise_hz), rng)
         return window
 
     @property
     def enabled(self) -> bool:
-        return max(self.hflip, self.vflip, self.time_reverse) > 0
+        flips = max(self.hflip, self.vflip, self.time_reverse) > 0
+        return flips or self.keep_min < 1.0 or self.noise_hz > 0

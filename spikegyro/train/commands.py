@@ -79,6 +79,12 @@ def train_command(
     hflip: float = typer.Option(None, help="Probability of a horizontal flip."),
     vflip: float = typer.Option(None, help="Probability of a vertical flip."),
     time_reverse: float = typer.Option(None, help="Probability of time inversion."),
+    event_keep_min: float = typer.Option(
+        None, help="Event drop: each window keeps U(this, 1) of its events (1 = off)."
+    ),
+    noise_events_hz: float = typer.Option(
+        None, help="Added background events per pixel per s, U(0, this) per window (0 = off)."
+    ),
     seed: int = typer.Option(None, help="Random seed (model init and samples)."),
     val_every: int = typer.Option(None, help="Validate and checkpoint every N steps."),
     val_windows: int = typer.Option(None, help="Validate on at most N windows (0 = all)."),
@@ -122,6 +128,8 @@ def train_command(
         "hflip": hflip,
         "vflip": vflip,
         "time_reverse": time_reverse,
+        "event_keep_min": event_keep_min,
+        "noise_events_hz": noise_events_hz,
         "seed": seed,
         "val_every": val_every,
         "val_windows": val_windows,

@@ -121,7 +121,7 @@ def training_samples(
         source = OnlineSource(online_simulator(config), config.train_window_ms)
     else:
         source = FileSource.from_split(config.data, "train", config.train_window_ms)
-    augment = AugmentConfig(config.hflip, config.vflip, config.time_reverse)
+    augment = AugmentConfig.of(config)
     return TrainingSamples(
         source, spec, seed=config.seed, augment=augment if augment.enabled else None, events=events
     )
