@@ -86,8 +86,9 @@ def optional_import(module: str, extra: str, path: object) -> ModuleType:
 class TimeUnwrapper:
     """Undo the wrap-around of a counter of ``period`` ticks across successive blocks.
 
-    A step back by more than half a period counts as one wrap; smaller steps back are kept
-    (they are real out-of-order timestamps, put in order later).
+    A step back by more than half a period counts as one wrap (and a step forward by more than
+    half a period as a late sample from before the last wrap); smaller steps back are kept (they
+    are real out-of-order timestamps, put in order later).
     """
 
     def __init__(self, period: int) -> None:
@@ -102,7 +103,10 @@ class TimeUnwrapper:
         prev = np.empty_like(t)
         prev[0] = t[0] if self.last is None else self.last
         prev[1:] = t[:-1]
-        wraps = np.cumsum(t - prev < -(self.period // 2))
+        step = t - prev
+        half = self.period // 2
+        # A late sample from just before a wrap, read after one from just past it, steps forward.
+        wraps = np.cumsum((step < -half).astype(np.int64) - (step > half))
         out = t + self.offset + wraps * self.period
         self.offset += int(wraps[-1]) * self.period
         self.last = int(t[-1])

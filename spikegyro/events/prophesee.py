@@ -12,7 +12,8 @@ EVT3;height=720;width=1280``, ``% geometry 1280x720``, ..., ``% end``; DAT: ``% 
   VECT_BASE_X (3) sets the base x and polarity; VECT_12 (4) / VECT_8 (5) emit an event at
   base + i for each set bit i of their 12 / 8 valid bits, then advance the base by 12 / 8;
   EVT_TIME_LOW (6) and EVT_TIME_HIGH (8) set the lower and upper 12 bits of a 24-bit time
-  (unwrapped here: a time-high that goes back means the counter wrapped). Others are skipped.
+  (unwrapped: a time-high that goes back by over half its range means the counter wrapped;
+  smaller steps back are out-of-order data, put in order later). Others are skipped.
 - DAT: after the header, one byte of event type and one of event size (8), then events of
   uint32 timestamp (µs, unwrapped) and uint32 data: x = bits 0-13, y = bits 14-27, polarity
   = bits 28-31.
@@ -210,7 +211,7 @@ def _decode_evt3(words, state, fill, x, y, t, p):  # pragma: no cover - compiled
             t_low = w & 0xFFF
         elif kind == 0x8:
             high = w & 0xFFF
-            if seen and high < t_high:
+            if seen and t_high - high > 2048:  # back by over half the period: a wrap
                 loops += 1 << 24
             t_high = high
             seen = 1
