@@ -9,7 +9,6 @@ the formats' counter wrap-arounds), packets out of order, empty files, and damag
 from __future__ import annotations
 
 import struct
-import subprocess
 import sys
 from pathlib import Path
 
@@ -43,10 +42,17 @@ def streamed(path: Path, chunk_events: int = 97, **kw):
     return chunks
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "spikegyro", *args], capture_output=True, text=True, timeout=120
-    )
+def cli_error(monkeypatch, capsys, *args: str) -> str:
+    """Run the command line in-process; assert exit 2 with one line on stderr, and return it."""
+    from spikegyro import cli
+
+    monkeypatch.setattr(sys, "argv", ["spikegyro", *args])
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main()
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.strip().count("\n") == 0
+    return err
 
 
 # --- jAER AEDAT 2.0: big-endian (uint32 address, int32 timestamp) records -----------------------
@@ -95,7 +101,7 @@ def test_jaer2_events_imu_wrap_and_order(tmp_path):
     assert_events(type(rec.events).concatenate(chunks), x, y, t, p)
 
 
-def test_jaer2_empty_and_truncated(tmp_path):
+def test_jaer2_empty_and_truncated(tmp_path, monkeypatch, capsys):
     empty = tmp_path / "empty.aedat"
     empty.write_bytes(JAER_HEADER)
     assert len(read_recording(empty).events) == 0
@@ -104,9 +110,8 @@ def test_jaer2_empty_and_truncated(tmp_path):
     bad.write_bytes(jaer_bytes([(jaer_dvs(1, 2, 1), 5)])[:-3])
     with pytest.raises(InputError, match="truncated"):
         read_recording(bad)
-    out = run_cli("info", str(bad))
-    assert out.returncode == 2
-    assert out.stderr.count("\n") == 1 and "bad.aedat" in out.stderr and "truncated" in out.stderr
+    err = cli_error(monkeypatch, capsys, "info", str(bad))
+    assert "bad.aedat" in err and "truncated" in err
 
 
 # --- jAER / cAER AEDAT 3.1: little-endian packets -----------------------------------------------
@@ -253,7 +258,7 @@ def evt3_bytes(groups) -> bytes:
     return header + np.array(words, dtype="<u2").tobytes()
 
 
-def test_evt3_vectors_and_wraps_past_2_32(tmp_path):
+def test_evt3_vectors_and_wraps_past_2_32(tmp_path, monkeypatch, capsys):
     rng = np.random.default_rng(4)
     # Steps of up to 2^22 µs: the 24-bit clock wraps over 256 times before t passes 2^32.
     steps = rng.integers(0, 1 << 22, 2200)
@@ -279,8 +284,7 @@ def test_evt3_vectors_and_wraps_past_2_32(tmp_path):
     empty.write_bytes(evt3_bytes([]))
     assert len(read_recording(empty).events) == 0
     path.write_bytes(evt3_bytes(groups)[:-1])
-    out = run_cli("info", str(path))
-    assert out.returncode == 2 and "truncated" in out.stderr
+    assert "truncated" in cli_error(monkeypatch, capsys, "info", str(path))
 
 
 def test_unsupported_raw_encoding(tmp_path):
