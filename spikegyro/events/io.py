@@ -183,25 +183,41 @@ def read_gyro(path: str | os.PathLike, *, imu_to_camera: np.ndarray | None = Non
     """Read angular velocity from a gyro/IMU text file or any file that carries ground truth.
 
     ``imu_to_camera``: the 3x3 rotation R with ω_camera = R · ω_file (None: as in the file).
-    Camera files are read for their IMU samples only.
     """
+    gyro = read_gyro_if_any(path, imu_to_camera=imu_to_camera)
+    if gyro is None:
+        raise InputError(f"{path}: the file holds no angular velocity (gyro) samples.")
+    return gyro
+
+
+def read_gyro_if_any(
+    path: str | os.PathLike, *, imu_to_camera: np.ndarray | None = None
+) -> GyroTrace | None:
+    """The file's angular velocity, or None; event data are not read (except from ``.npz``)."""
     path = Path(path)
     kind = detect_format(path)
-    if kind in ("imu_txt", "gyro_txt"):
-        gyro = _read_gyro_text(path, kind)
-        return replace(gyro, omega=rotate_to_camera(gyro.omega, imu_to_camera))
     if kind in CAMERA_FORMATS:
         module = CAMERA_FORMATS[kind]
-        header = module.read_header(path, kind)
-        blocks = module.iter_blocks(path, header, events=False)
-        gyro = gyro_from_blocks(blocks, imu_to_camera, str(path))
-        if gyro is None:
-            raise InputError(f"{path}: the file holds no gyro (IMU) samples.")
-        return gyro
-    rec = read_recording(path, imu_to_camera=imu_to_camera)
-    if rec.gyro is None:
-        raise InputError(f"{path}: the file holds no angular velocity (gyro) samples.")
-    return rec.gyro
+        blocks = module.iter_blocks(path, module.read_header(path, kind), events=False)
+        return gyro_from_blocks(blocks, imu_to_camera, str(path))
+    gyro = None
+    if kind in ("imu_txt", "gyro_txt"):
+        gyro = _read_gyro_text(path, kind)
+    elif kind == "ecd_dir":
+        for name, gkind in (("imu.txt", "imu_txt"), ("gyro.txt", "gyro_txt")):
+            if (path / name).exists():
+                gyro = _read_gyro_text(path / name, gkind)
+                break
+    elif kind == "hdf5":
+        with h5py.File(path, "r") as f:
+            if "ang_xyz" in f or "ang_ts" in f:
+                _require_keys(f, ("ang_xyz", "ang_ts"), path)
+                gyro = GyroTrace.from_arrays(f["ang_ts"][()], f["ang_xyz"][()], source=str(path))
+    elif kind == "npz":
+        gyro = _read_npz(path, None).gyro
+    if gyro is None:
+        return None
+    return replace(gyro, omega=rotate_to_camera(gyro.omega, imu_to_camera))
 
 
 def _require_keys(f: h5py.File, keys: tuple[str, ...], path: Path) -> None:
