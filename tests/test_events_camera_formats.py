@@ -149,6 +149,13 @@ def test_aedat31_polarity_and_imu(tmp_path):
     np.testing.assert_array_equal(rec.gyro.t, [imu_t])
     np.testing.assert_allclose(rec.gyro.omega, np.radians([[10.0, -20.0, 30.0]]), rtol=1e-6)
     assert_events(type(rec.events).concatenate(streamed(path)), x, y, t, p)
+    # A packet 150 ms older than the one before: past the streaming reorder window (one line),
+    # while a whole-file read still sorts it in.
+    late = struct.pack("<Ii", (7 << 17) | (8 << 2) | 1, int(t[-1] - (2 << 31)) - 150_000)
+    path.write_bytes(header + b"".join(packets) + caer_packet(1, 8, 2, late, 1))
+    assert len(read_recording(path).events) == len(t) + 1
+    with pytest.raises(InputError, match="out of time order by more than 100 ms"):
+        streamed(path)
     path.write_bytes(header + b"".join(packets)[:-3])
     with pytest.raises(InputError, match="truncated"):
         read_recording(path)
