@@ -210,3 +210,35 @@ def test_convert_to_camera_formats(tmp_path, suffix):
     back = read_recording(out)
     assert back.events.sensor_size == (640, 480)
     assert_sorted_equal(back.events, x, y, t, p)
+
+
+def test_ros2_bag_folder(tmp_path):
+    pytest.importorskip("rosbags")
+    from rosbags.rosbag2 import Writer
+
+    from spikegyro.events.rosbag import typestore
+
+    store = typestore(ros2=True)
+    types = store.types
+    Time = types["builtin_interfaces/msg/Time"]
+    x, y, t, p = random_events(300, 240, 180, 1_700_000_000_000_000, 50_000, seed=9)
+    path = tmp_path / "bag2"
+    with Writer(path, version=8) as writer:
+        conn = writer.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=store)
+        for k, part in enumerate(np.array_split(np.arange(300), 3)[::-1]):  # newest first
+            events = [
+                types["dvs_msgs/msg/Event"](
+                    x=int(x[i]),
+                    y=int(y[i]),
+                    ts=Time(sec=int(t[i]) // 1_000_000, nanosec=int(t[i]) % 1_000_000 * 1000),
+                    polarity=bool(p[i]),
+                )
+                for i in part
+            ]
+            header = types["std_msgs/msg/Header"](stamp=Time(sec=0, nanosec=0), frame_id="cam")
+            msg = types["dvs_msgs/msg/EventArray"](
+                header=header, height=180, width=240, events=events
+            )
+            writer.write(conn, k + 1, store.serialize_cdr(msg, msg.__msgtype__))
+    assert detect_format(path) == "rosbag"
+    assert_sorted_equal(read_recording(path).events, x, y, t, p)

@@ -17,7 +17,11 @@ from spikegyro.events.io import detect_format, read_recording
 
 
 def info(
-    path: Path = typer.Argument(..., help="Event file: .h5/.hdf5, .npz, events.txt or a folder."),
+    path: Path = typer.Argument(
+        ...,
+        help="Event file: .h5/.hdf5, .npz, events.txt or a folder, AEDAT 2/3.1/4, Prophesee "
+        ".raw/.dat, a ROS bag.",
+    ),
     width: int = typer.Option(None, help="Sensor width in pixels (text files default to 240)."),
     height: int = typer.Option(None, help="Sensor height in pixels (text files default to 180)."),
 ) -> None:

@@ -209,7 +209,11 @@ def read_gyro_if_any(
                 gyro = _read_gyro_text(path / name, gkind)
                 break
     elif kind == "hdf5":
-        with h5py.File(path, "r") as f:
+        try:
+            f = h5py.File(path, "r")
+        except OSError as exc:
+            raise InputError(f"{path}: not a readable HDF5 file ({exc}).") from None
+        with f:
             if "ang_xyz" in f or "ang_ts" in f:
                 _require_keys(f, ("ang_xyz", "ang_ts"), path)
                 gyro = GyroTrace.from_arrays(f["ang_ts"][()], f["ang_xyz"][()], source=str(path))
