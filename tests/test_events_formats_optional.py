@@ -242,3 +242,24 @@ def test_ros2_bag_folder(tmp_path):
             writer.write(conn, k + 1, store.serialize_cdr(msg, msg.__msgtype__))
     assert detect_format(path) == "rosbag"
     assert_sorted_equal(read_recording(path).events, x, y, t, p)
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".npz"])
+def test_convert_memory_does_not_grow_with_the_file(tmp_path, suffix):
+    import tracemalloc
+
+    peaks = []
+    for n in (100_000, 400_000):
+        x, y, t, p = random_events(n, 240, 180, 0, 10 * n, seed=10)
+        rec = Recording(EventArray.from_arrays(x, y, t, p, 240, 180))
+        src = write_recording(tmp_path / f"src{n}.h5", rec)
+        tracemalloc.start()
+        try:
+            convert(src, tmp_path / f"out{n}{suffix}", chunk_events=5000)
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+        assert_sorted_equal(read_recording(tmp_path / f"out{n}{suffix}").events, x, y, t, p)
+    # Four times the events (5.2 MB of them in memory) leave the peak where it was.
+    assert peaks[1] < 1.25 * peaks[0] + 100_000, peaks
+    assert peaks[1] < 400_000 * 13 / 3

@@ -78,7 +78,7 @@ def optional_import(module: str, extra: str, path: object) -> ModuleType:
         return importlib.import_module(module)
     except ImportError:
         raise InputError(
-            f"{path}: reading this format needs the optional package '{module.split('.')[0]}': "
+            f"{path}: this format needs the optional package '{module.split('.')[0]}': "
             f"pip install 'spikegyro[{extra}]'."
         ) from None
 

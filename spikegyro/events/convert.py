@@ -87,7 +87,7 @@ def _npy_entry(zf: zipfile.ZipFile, name: str, raw: Path, dtype: np.dtype, n: in
         header = {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False}
         np.lib.format.write_array_header_2_0(out, dict(header, shape=(n,)))
         with open(raw, "rb") as src:
-            shutil.copyfileobj(src, out, 1 << 22)
+            shutil.copyfileobj(src, out, 1 << 18)
 
 
 @contextmanager

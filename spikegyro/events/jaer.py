@@ -183,6 +183,7 @@ _IMU6 = np.dtype([("info", "<u4"), ("t", "<i4"), ("values", "<f4", (7,))])
 def _iter_aedat3(
     path: Path, header: CameraHeader, events: bool, imu: bool
 ) -> Iterator[EventBlock | ImuBlock]:
+    size = path.stat().st_size
     with open(path, "rb") as f:
         f.seek(header.data_offset)
         while True:
@@ -198,10 +199,10 @@ def _iter_aedat3(
             kind = int(h["type"])
             wanted = (kind == 1 and events) or (kind == 3 and imu)
             if not wanted:
-                here = f.tell()
-                if f.seek(here + nbytes) > f.seek(0, 2):
+                end = f.tell() + nbytes
+                if end > size:
                     raise InputError(f"{path}: truncated: the last packet is incomplete.")
-                f.seek(here + nbytes)
+                f.seek(end)
                 continue
             data = f.read(nbytes)
             if len(data) < nbytes:
