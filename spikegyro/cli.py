@@ -44,6 +44,7 @@ def _root(
 
 
 app.command("info")(events_commands.info)
+app.command("convert")(events_commands.convert_command)
 
 
 app.command("demo")(demo_command)

@@ -10,6 +10,12 @@ Formats (``detect_format`` names):
 - ``imu_txt``: ``t ax ay az gx gy gz`` (seconds, m/s^2, rad/s); only the gyro is kept.
 - ``gyro_txt``: ``t wx wy wz`` (seconds, rad/s).
 - ``ecd_dir``: a folder holding ``events.txt`` and optionally ``imu.txt`` or ``gyro.txt``.
+- camera formats, each in its own module and recognised by its header, whatever the extension:
+  ``aedat4`` (iniVation DV, :mod:`~spikegyro.events.aedat4`), ``jaer2`` / ``jaer3`` (jAER AEDAT
+  2.0 / 3.1, :mod:`~spikegyro.events.jaer`), ``prophesee_raw`` (EVT 2.0 / 3.0) and
+  ``prophesee_dat`` (:mod:`~spikegyro.events.prophesee`), ``rosbag`` (ROS 1 bags, ROS 2 bag
+  folders, :mod:`~spikegyro.events.rosbag`). Their gyro samples are in the IMU's own axes unless
+  ``imu_to_camera`` (see :func:`spikegyro.events.imu.imu_rotation`) is given.
 
 Text files are parsed block by block with NumPy (no Python object per line), so multi-GB files
 read at disk speed and :func:`iter_event_chunks` streams them in bounded memory.
@@ -22,6 +28,7 @@ import os
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -29,11 +36,39 @@ import h5py
 import numpy as np
 
 from spikegyro.errors import InputError
+from spikegyro.events import aedat4, jaer, prophesee, rosbag
+from spikegyro.events.blocks import (
+    gyro_from_blocks,
+    recording_from_blocks,
+    sensor_of,
+    sorted_chunks,
+)
 from spikegyro.events.core import EventArray, GyroTrace, Recording
+from spikegyro.events.imu import rotate_to_camera
 
 DEFAULT_SENSOR = (240, 180)
 OFFICIAL_KEYS = ("ev_xy", "ev_ts", "ev_pol", "ang_xyz", "ang_ts")
 _TEXT_BLOCK_BYTES = 1 << 24
+_CAMERA_MODULES = (aedat4, jaer, prophesee, rosbag)
+CAMERA_FORMATS = {fmt: module for module in _CAMERA_MODULES for fmt in module.FORMATS}
+_CAMERA_SUFFIXES = {
+    ".aedat4": "AEDAT 4",
+    ".aedat": "AEDAT",
+    ".raw": "Prophesee RAW",
+    ".bag": "ROS bag",
+}
+
+
+def _sniff_camera(path: Path) -> str | None:
+    head = b""
+    if path.is_file():
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    for module in _CAMERA_MODULES:
+        fmt = module.sniff(path, head)
+        if fmt:
+            return fmt
+    return None
 
 
 def detect_format(path: str | os.PathLike) -> str:
@@ -41,11 +76,18 @@ def detect_format(path: str | os.PathLike) -> str:
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file or directory.")
+    camera = _sniff_camera(path)
+    if camera:
+        return camera
+    suffix = path.suffix.lower()
+    if suffix in _CAMERA_SUFFIXES:
+        raise InputError(
+            f"{path}: not a {_CAMERA_SUFFIXES[suffix]} file (its header is missing or damaged)."
+        )
     if path.is_dir():
         if (path / "events.txt").exists():
             return "ecd_dir"
         raise InputError(f"{path}: a folder without events.txt; give an event file instead.")
-    suffix = path.suffix.lower()
     if suffix in (".h5", ".hdf5"):
         return "hdf5"
     if suffix == ".npz":
@@ -65,7 +107,8 @@ def detect_format(path: str | os.PathLike) -> str:
             "'t wx wy wz' gyro (4) or 't ax ay az gx gy gz' IMU (7)."
         )
     raise InputError(
-        f"{path}: unknown format '{suffix}'; use .h5/.hdf5, .npz, or a .txt event/gyro file."
+        f"{path}: unknown format '{suffix}'; use .h5/.hdf5, .npz, a .txt event/gyro file, "
+        "AEDAT 2/3.1/4, Prophesee .raw/.dat or a ROS bag."
     )
 
 
@@ -136,16 +179,49 @@ def _read_gyro_text(path: Path, kind: str) -> GyroTrace:
     return GyroTrace.from_arrays(np.rint(rows[:, 0] * 1e6), rows[:, -3:], source=str(path))
 
 
-def read_gyro(path: str | os.PathLike) -> GyroTrace:
-    """Read angular velocity from a gyro/IMU text file or any file that carries ground truth."""
+def read_gyro(path: str | os.PathLike, *, imu_to_camera: np.ndarray | None = None) -> GyroTrace:
+    """Read angular velocity from a gyro/IMU text file or any file that carries ground truth.
+
+    ``imu_to_camera``: the 3x3 rotation R with ω_camera = R · ω_file (None: as in the file).
+    """
+    gyro = read_gyro_if_any(path, imu_to_camera=imu_to_camera)
+    if gyro is None:
+        raise InputError(f"{path}: the file holds no angular velocity (gyro) samples.")
+    return gyro
+
+
+def read_gyro_if_any(
+    path: str | os.PathLike, *, imu_to_camera: np.ndarray | None = None
+) -> GyroTrace | None:
+    """The file's angular velocity, or None; event data are not read (except from ``.npz``)."""
     path = Path(path)
     kind = detect_format(path)
+    if kind in CAMERA_FORMATS:
+        module = CAMERA_FORMATS[kind]
+        blocks = module.iter_blocks(path, module.read_header(path, kind), events=False)
+        return gyro_from_blocks(blocks, imu_to_camera, str(path))
+    gyro = None
     if kind in ("imu_txt", "gyro_txt"):
-        return _read_gyro_text(path, kind)
-    rec = read_recording(path)
-    if rec.gyro is None:
-        raise InputError(f"{path}: the file holds no angular velocity (gyro) samples.")
-    return rec.gyro
+        gyro = _read_gyro_text(path, kind)
+    elif kind == "ecd_dir":
+        for name, gkind in (("imu.txt", "imu_txt"), ("gyro.txt", "gyro_txt")):
+            if (path / name).exists():
+                gyro = _read_gyro_text(path / name, gkind)
+                break
+    elif kind == "hdf5":
+        try:
+            f = h5py.File(path, "r")
+        except OSError as exc:
+            raise InputError(f"{path}: not a readable HDF5 file ({exc}).") from None
+        with f:
+            if "ang_xyz" in f or "ang_ts" in f:
+                _require_keys(f, ("ang_xyz", "ang_ts"), path)
+                gyro = GyroTrace.from_arrays(f["ang_ts"][()], f["ang_xyz"][()], source=str(path))
+    elif kind == "npz":
+        gyro = _read_npz(path, None).gyro
+    if gyro is None:
+        return None
+    return replace(gyro, omega=rotate_to_camera(gyro.omega, imu_to_camera))
 
 
 def _require_keys(f: h5py.File, keys: tuple[str, ...], path: Path) -> None:
@@ -219,16 +295,36 @@ def _read_npz(path: Path, sensor: tuple[int, int] | None) -> Recording:
     return Recording(events=events, gyro=gyro, attrs=attrs)
 
 
-def read_recording(path: str | os.PathLike, *, sensor: tuple[int, int] | None = None) -> Recording:
+def read_recording(
+    path: str | os.PathLike,
+    *,
+    sensor: tuple[int, int] | None = None,
+    imu_to_camera: np.ndarray | None = None,
+) -> Recording:
     """Read a whole event file (any supported format) into memory.
 
     Args:
-        path: the file (or Event Camera Dataset folder).
+        path: the file (or Event Camera Dataset folder, or ROS 2 bag folder).
         sensor: (width, height) in pixels; overrides what the file says. Text formats carry no
             sensor size and default to the DAVIS240's 240x180.
+        imu_to_camera: 3x3 rotation R applied to the file's angular velocity, ω_camera =
+            R · ω_file (None: as in the file; camera formats record it in the IMU's axes).
     """
     path = Path(path)
     kind = detect_format(path)
+    if kind in CAMERA_FORMATS:
+        module = CAMERA_FORMATS[kind]
+        header = module.read_header(path, kind)
+        blocks = module.iter_blocks(path, header)
+        return recording_from_blocks(blocks, header, sensor, imu_to_camera, str(path))
+    rec = _read_other(path, kind, sensor)
+    if rec.gyro is not None and imu_to_camera is not None:
+        gyro = replace(rec.gyro, omega=rotate_to_camera(rec.gyro.omega, imu_to_camera))
+        rec = replace(rec, gyro=gyro)
+    return rec
+
+
+def _read_other(path: Path, kind: str, sensor: tuple[int, int] | None) -> Recording:
     if kind == "hdf5":
         return _read_hdf5(path, sensor)
     if kind == "npz":
@@ -261,8 +357,10 @@ def iter_event_chunks(
 ) -> Iterator[EventArray]:
     """Stream a file's events in time order, about ``chunk_events`` at a time, in bounded memory.
 
-    HDF5 and text files are read incrementally; ``.npz`` is loaded whole (it is not streamable).
-    Ordering across chunk boundaries is checked too.
+    HDF5, text and camera files are read incrementally; ``.npz`` is loaded whole (it is not
+    streamable). Camera files' packets may be out of time order by up to
+    :data:`~spikegyro.events.blocks.REORDER_US`; they are put in order. Ordering across chunk
+    boundaries is checked too.
     """
     path = Path(path)
     kind = detect_format(path)
@@ -299,6 +397,13 @@ def iter_event_chunks(
         block = max(1 << 16, chunk_events * 32)
         for rows in _iter_text_rows(events_path, 4, block_bytes=block):
             yield checked(_events_from_rows(rows, sensor or DEFAULT_SENSOR, str(events_path)))
+    elif kind in CAMERA_FORMATS:
+        module = CAMERA_FORMATS[kind]
+        header = module.read_header(path, kind)
+        blocks = module.iter_blocks(path, header, imu=False)
+        size = sensor_of(header, sensor, path)
+        for chunk in sorted_chunks(blocks, size, chunk_events, str(path)):
+            yield checked(chunk)
     elif kind == "npz":
         events = read_recording(path, sensor=sensor).events
         for i in range(0, len(events), chunk_events):
