@@ -14,7 +14,7 @@ self-consistency, not ground truth; the motion-capture ω of a window (±20 deg/
 
 Speed (CPU seconds, so that other processes on a shared machine distort it less):
 - cold: a new Python process estimating one window, imports and Numba cache loading included
-  (wall time, the median of ``--cold-runs``);
+  (its CPU time, the median of ``--cold-runs``, and that of a process that only imports);
 - warm: a running process over consecutive windows, each warm-started from the previous one's
   estimate (the dev windows, each started from a neighbour's estimate off by about 20 deg/s);
 - the same run times one evaluation of the plain NumPy objective and of ours, and prints the
@@ -30,6 +30,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import argparse
+import resource
 import statistics
 import subprocess
 import sys
@@ -121,7 +122,7 @@ def accuracy(folders: list[Path], grid_points: int) -> list[np.ndarray]:
         calib = load_calibration(folder / "calib.txt")
         ours = cmax.estimate_window(rec.events, calib)
         estimates.append(ours)
-        ref = plain_cmax(folder, grid_points)
+        ref = plain_cmax(folder, grid_points) if grid_points > 0 else np.full(3, np.nan)
         diff = np.degrees(np.linalg.norm(ours - ref))
         diffs.append(diff)
         line = (
@@ -157,6 +158,9 @@ def translboxes(folder: Path) -> None:
     )
 
 
+COLD_IMPORTS = """
+from spikegyro.baselines.cmax import estimate_window
+"""
 COLD = """
 import sys, time
 from spikegyro.baselines.cmax import estimate_window
@@ -168,14 +172,22 @@ estimate_window(rec.events, load_calibration(sys.argv[1] + '/calib.txt'))
 
 
 def speed(folders: list[Path], estimates: list[np.ndarray], cold_runs: int) -> None:
-    cold = []
+    cold, cold_cpu, import_cpu = [], [], []
     for k in range(cold_runs):
-        w0 = time.perf_counter()
-        subprocess.run([sys.executable, "-c", COLD, str(folders[k % len(folders)])], check=True)
-        cold.append(time.perf_counter() - w0)
+        for script, sink in ((COLD, cold_cpu), (COLD_IMPORTS, import_cpu)):
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            w0 = time.perf_counter()
+            folder = str(folders[k % len(folders)])
+            subprocess.run([sys.executable, "-c", script, folder], check=True)
+            wall = time.perf_counter() - w0
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            sink.append(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
+            if script is COLD:
+                cold.append(wall)
     print(
-        f"cold: {1 / statistics.median(cold):.2f} estimates/s (a new process per window, "
-        f"median of {cold_runs}: {statistics.median(cold):.2f} s wall, imports included)"
+        f"cold: {1 / statistics.median(cold_cpu):.2f} estimates per CPU-second (a new process "
+        f"per window, median of {cold_runs}: {statistics.median(cold_cpu):.2f} CPU-s, of which "
+        f"the imports {statistics.median(import_cpu):.2f}; {statistics.median(cold):.2f} s wall)"
     )
     recs = [read_recording(f / "events.txt").events for f in folders]
     calibs = [load_calibration(f / "calib.txt") for f in folders]
@@ -221,7 +233,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--real", type=Path, help="Folder of real windows (<name>/events.txt).")
     parser.add_argument("--translboxes", type=Path, help="The translBoxes folder (gyro.txt).")
-    parser.add_argument("--reference-grid", type=int, default=15, help="Reference grid per axis.")
+    parser.add_argument(
+        "--reference-grid", type=int, default=15, help="Reference grid per axis (0: skip it)."
+    )
     parser.add_argument("--cold-runs", type=int, default=3)
     args = parser.parse_args()
     folders = sorted(p.parent for p in args.real.glob("*/events.txt")) if args.real else []
