@@ -225,6 +225,11 @@ def test_time_windows_centred_or_causal() -> None:
     np.testing.assert_array_equal(centred, [[400, 600, 50_000]])  # [40 ms, 60 ms)
     causal = time_windows(t, 20_000, np.array([50_000]), causal=True)
     np.testing.assert_array_equal(causal, [[300, 500, 50_000]])  # [30 ms, 50 ms)
+    events = EventArray.from_arrays(t % WIDTH, t % HEIGHT, t, t % 2, WIDTH, HEIGHT)
+    plan = cmax.plan_windows(events, cmax.CMaxConfig(window_ms=20.0, stride_ms=10.0))
+    np.testing.assert_array_equal(plan[:, 2], np.arange(10_000, 89_901, 10_000))
+    short = cmax.plan_windows(events[:50], cmax.CMaxConfig(window_ms=20.0))
+    np.testing.assert_array_equal(short, [[0, 50, 4900 // 2]])  # one window at the middle
 
 
 def test_predict_stream_by_count_tracks_a_change_of_rotation() -> None:

@@ -381,8 +381,9 @@ def plan_windows(
 
     Count windows (``config.window_ms == 0``) cover all events; only those whose reference time
     lies in ``[t_first_us, t_end_us]`` are kept. Time windows are placed every ``stride_ms``
-    from ``t_first_us`` (default: the first event, plus a stride if causal) to ``t_end_us``
-    (default: the last event).
+    from ``t_first_us`` to ``t_end_us``; by default from the first event plus a stride (causal)
+    or half a window (centred) to the last event (less half a window when centred; a stream
+    shorter than that gets one window at its middle).
     """
     t = events.t
     if len(t) == 0:
@@ -393,9 +394,15 @@ def plan_windows(
         rows = count_windows(t, config.window_events, config.stride_events)
         return rows[(rows[:, 2] >= lo) & (rows[:, 2] <= hi)]
     stride_us = max(round(config.stride_ms * 1000), 1)
+    # By default centred windows stay inside the stream; one shorter than a window gets one.
+    half = 0 if config.causal else round(config.window_ms * 500)
     if t_first_us is None:
-        lo += stride_us if config.causal else round(config.window_ms * 500)
+        lo += stride_us if config.causal else half
+    if t_end_us is None:
+        hi -= half
     times = np.arange(lo, hi + 1, stride_us, dtype=np.int64)
+    if not len(times) and t_first_us is None and t_end_us is None:
+        times = np.array([(int(t[0]) + int(t[-1])) // 2], dtype=np.int64)
     return time_windows(t, round(config.window_ms * 1000), times, config.causal)
 
 

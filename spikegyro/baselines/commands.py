@@ -116,8 +116,6 @@ def cmax_command(
             ev,
             camera,
             config,
-            t_first_us=t0,
-            t_end_us=t_end,
             progress=lambda done, total: progress.update(task, completed=done, total=total),
         )
     wall = time.perf_counter() - wall
