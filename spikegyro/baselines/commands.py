@@ -11,11 +11,11 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from spikegyro.baselines.cmax import CMaxConfig, camera_from_attrs, hold_per_ms, predict_stream
+from spikegyro.baselines.cmax import CMaxConfig, camera_from_attrs, per_ms, predict_stream
 from spikegyro.errors import InputError
 from spikegyro.events.calib import resolve_calibration
 from spikegyro.events.io import read_gyro, read_recording
-from spikegyro.stream.predict import WARMUP_STEPS, ErrorStats, event_mapper, model_camera
+from spikegyro.stream.predict import WARMUP_STEPS, ErrorStats
 from spikegyro.stream.writer import check_prediction_path, write_predictions
 
 BIN_US = 1000
@@ -35,7 +35,7 @@ def cmax_command(
         None,
         "--calib",
         help="Sensor calibration 'fx fy cx cy k1 k2 p1 p2 k3' (ECD calib.txt; taken from an ECD "
-        "folder by default); events are undistorted onto the same pinhole.",
+        "folder by default); events are undistorted to rays with it.",
     ),
     intrinsics: tuple[float, float, float, float] = typer.Option(
         None, "--intrinsics", help="Sensor pinhole intrinsics fx fy cx cy (pixels), no distortion."
@@ -49,18 +49,32 @@ def cmax_command(
     start: float = typer.Option(0.0, "--start", help="Start, seconds after the first event."),
     end: float = typer.Option(None, "--end", help="End, seconds after the first event."),
     out: Path = typer.Option(Path("pred.csv"), "--out", "-o", help="Output .csv or .h5."),
-    window_ms: float = typer.Option(
-        CMaxConfig.window_ms, "--window-ms", min=1.0, help="Events per estimate, milliseconds."
+    window_events: int = typer.Option(
+        CMaxConfig.window_events, "--window-events", min=100, help="Events per window."
     ),
-    stride_ms: int = typer.Option(
-        CMaxConfig.stride_ms, "--stride-ms", min=1, help="One estimate every this many ms."
+    stride_events: int = typer.Option(
+        CMaxConfig.stride_events, "--stride-events", min=1, help="Events between windows."
+    ),
+    window_ms: float = typer.Option(
+        None, "--window-ms", min=0.1, help="Windows of this many ms instead of event counts."
+    ),
+    stride_ms: float = typer.Option(
+        CMaxConfig.stride_ms, "--stride-ms", min=0.1, help="With --window-ms: ms between windows."
+    ),
+    whole: bool = typer.Option(
+        False, "--whole", help="One estimate from all events between --start and --end."
+    ),
+    max_events: int = typer.Option(
+        CMaxConfig.max_events, "--max-events", min=100, help="Subsample larger windows to this."
     ),
     width: int = typer.Option(None, help="Sensor width, pixels (text files default to 240)."),
     height: int = typer.Option(None, help="Sensor height, pixels (text files default to 180)."),
 ) -> None:
     """Contrast maximization (Gallego & Scaramuzza 2017): ω every 1 ms, no training.
 
-    Each estimate uses the events of the preceding --window-ms and is held until the next one.
+    By default each window holds --window-events events (every --stride-events) and its
+    estimate stands for the window's middle; a stream shorter than a window is one window. The
+    estimates are interpolated linearly onto 1 ms steps (held beyond the first and last).
     """
     # Without --calib/--intrinsics: the file's fx, fy, cx, cy attributes, else the simulator's
     # pinhole. The span is read into memory (CMax runs slower than real time anyway).
@@ -74,17 +88,19 @@ def cmax_command(
     rec = read_recording(events, sensor=(width, height) if width and height else None)
     if not len(rec.events):
         raise InputError(f"{events}: the file holds no events.")
-    sensor = rec.events.sensor_size
-    pinhole = calibration or camera_from_attrs(rec.attrs, *sensor)
-    # The stream engineer's mapping: undistort onto a pinhole with the sensor's own intrinsics.
-    spec = {"sensor": list(sensor), "intrinsics": [pinhole.fx, pinhole.fy, pinhole.cx, pinhole.cy]}
-    camera = model_camera(spec)
+    camera = calibration or camera_from_attrs(rec.attrs, *rec.events.sensor_size)
     t0 = int(rec.events.t[0]) // BIN_US * BIN_US + round(start * 1e6)
     t_end = int(rec.events.t[-1]) + 1 if end is None else t0 - round(start * 1e6) + round(end * 1e6)
-    ev = event_mapper(sensor, spec, calibration, str(events))(rec.events.slice_time(t0, t_end))
+    ev = rec.events.slice_time(t0, t_end)
     if not len(ev):
         raise InputError(f"{events}: no events between --start and --end.")
-    config = replace(CMaxConfig(), window_ms=window_ms, stride_ms=stride_ms)
+    config = replace(CMaxConfig(), max_events=max_events)
+    if whole:
+        config = replace(config, window_events=len(ev), stride_events=len(ev))
+    elif window_ms is not None:
+        config = replace(config, window_ms=window_ms, stride_ms=stride_ms)
+    else:
+        config = replace(config, window_events=window_events, stride_events=stride_events)
     steps = -(-(t_end - t0) // BIN_US)
     columns = [
         TextColumn("[bold]cmax"),
@@ -100,13 +116,11 @@ def cmax_command(
             ev,
             camera,
             config,
-            t_first_us=t0 + config.stride_ms * BIN_US,
-            t_end_us=t0 + steps * BIN_US,
             progress=lambda done, total: progress.update(task, completed=done, total=total),
         )
     wall = time.perf_counter() - wall
     times = t0 + BIN_US * (np.arange(steps, dtype=np.int64) + 1)
-    per_ms = hold_per_ms(t_us, omega, t0, steps)
+    rows = per_ms(t_us, omega, times)
     reference = None
     stats = ErrorStats()
     if gyro is not None:
@@ -114,11 +128,11 @@ def cmax_command(
         reference = trace.interpolate(times)
         reference[(times < trace.t[0]) | (times > trace.t[-1])] = np.nan
         scored = times > t0 + WARMUP_STEPS * BIN_US
-        stats.add(per_ms[scored], reference[scored])
-    write_predictions(out, times, per_ms, reference)
+        stats.add(rows[scored], reference[scored])
+    write_predictions(out, times, rows, reference)
     console.print(
         f"{len(t_us):,} estimates ({steps / 1000:.3f} s, {len(ev):,} events) -> {out}; "
-        f"{wall:.1f} s wall, {len(t_us) / max(wall, 1e-9):.1f} windows/s, "
+        f"{wall:.1f} s wall, {len(t_us) / max(wall, 1e-9):.1f} estimates/s, "
         f"{steps / 1000 / max(wall, 1e-9):.2f}× real time"
     )
     summary = stats.summary()
