@@ -6,22 +6,55 @@ turns :class:`~spikegyro.errors.InputError` into one line on stderr and exit cod
 
 from __future__ import annotations
 
+import importlib
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import typer
+from typer.core import TyperGroup
 
 from spikegyro import __version__
-from spikegyro.baselines import commands as baselines_commands
-from spikegyro.demo import DemoConfig, run_demo
 from spikegyro.errors import InputError
-from spikegyro.evaluate import commands as evaluate_commands
-from spikegyro.events import commands as events_commands
-from spikegyro.sim import commands as sim_commands
-from spikegyro.stream import commands as stream_commands
-from spikegyro.train import commands as train_commands
+
+_COMMANDS: dict[str, str] = {
+    "info": "spikegyro.events.commands:info",
+    "demo": "spikegyro.cli:_demo_command",
+    "simulate": "spikegyro.sim.commands:simulate_dataset",
+    "export-official": "spikegyro.sim.commands:export_official_command",
+    "show": "spikegyro.sim.commands:show",
+    "evaluate": "spikegyro.evaluate.commands:evaluate",
+    "report": "spikegyro.evaluate.commands:report",
+    "train": "spikegyro.train.commands:train_command",
+    "predict": "spikegyro.stream.commands:predict",
+    "baseline": "spikegyro.baselines.commands:app",
+}
+"""Command name -> ``module:attribute`` (a command function, a Typer sub-app, or a function
+``_name`` returning a command function). A stage's module is imported only when its command
+runs or ``--help`` lists it, so ``spikegyro predict`` does not pay for torch or matplotlib."""
+
+
+class _LazyGroup(TyperGroup):
+    def list_commands(self, ctx: typer.Context) -> list[str]:
+        return [*super().list_commands(ctx), *_COMMANDS]
+
+    def get_command(self, ctx: typer.Context, cmd_name: str) -> Any:  # a click Command or None
+        if cmd_name not in _COMMANDS:
+            return super().get_command(ctx, cmd_name)
+        module, attribute = _COMMANDS[cmd_name].split(":")
+        target = getattr(importlib.import_module(module), attribute)
+        if isinstance(target, typer.Typer):
+            command = typer.main.get_group(target)
+            command.name = cmd_name
+            return command
+        single = typer.Typer()
+        single.command(cmd_name)(target() if attribute.startswith("_") else target)
+        return typer.main.get_command(single)
+
 
 app = typer.Typer(
+    cls=_LazyGroup,
     name="spikegyro",
     help="Event camera as a gyroscope: simulate, train, evaluate and run spiking networks.",
     no_args_is_help=True,
@@ -43,30 +76,21 @@ def _root(
         raise typer.Exit()
 
 
-app.command("info")(events_commands.info)
+def _demo_command() -> Callable[..., None]:
+    from spikegyro.demo import DemoConfig, run_demo
 
+    def demo(
+        out: Path = typer.Option(Path("demo-output"), "--out", help="Output folder."),
+        sequences: int = typer.Option(DemoConfig.sequences, min=10, help="Simulated sequences."),
+        train_minutes: float = typer.Option(
+            DemoConfig.train_minutes, min=0.1, help="Training time budget, minutes."
+        ),
+        seed: int = typer.Option(DemoConfig.seed, help="Seed of the dataset and the training run."),
+    ) -> None:
+        """Simulate a dataset, train SNN-6 on the CPU, evaluate it, and print a summary."""
+        run_demo(DemoConfig(out=out, sequences=sequences, train_minutes=train_minutes, seed=seed))
 
-@app.command("demo")
-def demo(
-    out: Path = typer.Option(Path("demo-output"), "--out", help="Output folder."),
-    sequences: int = typer.Option(DemoConfig.sequences, min=10, help="Simulated sequences."),
-    train_minutes: float = typer.Option(
-        DemoConfig.train_minutes, min=0.1, help="Training time budget, minutes."
-    ),
-    seed: int = typer.Option(DemoConfig.seed, help="Seed of the dataset and the training run."),
-) -> None:
-    """Simulate a dataset, train SNN-6 on the CPU, evaluate it, and print a summary."""
-    run_demo(DemoConfig(out=out, sequences=sequences, train_minutes=train_minutes, seed=seed))
-
-
-app.command("simulate")(sim_commands.simulate_dataset)
-app.command("export-official")(sim_commands.export_official_command)
-app.command("show")(sim_commands.show)
-app.command("evaluate")(evaluate_commands.evaluate)
-app.command("report")(evaluate_commands.report)
-app.command("train")(train_commands.train_command)
-app.command("predict")(stream_commands.predict)
-app.add_typer(baselines_commands.app, name="baseline")
+    return demo
 
 
 def main() -> None:

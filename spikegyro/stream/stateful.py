@@ -41,6 +41,7 @@ against the naive dense execution.
 
 from __future__ import annotations
 
+import itertools
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -244,12 +245,13 @@ class StreamingSNN:
         n = len(step_offsets) - 1
         n_layers = len(self.spec.layers)
         out = np.zeros((n, self._fc.shape[0]), dtype=np.float64)
-        if self.threads == 1 or n <= self.block_steps or n_layers < 2:
-            edges = [*range(0, n, self.block_steps), n]
-            for s0, s1 in zip(edges[:-1], edges[1:], strict=True):
+        # blocks bound the latency of a pipeline and keep a layer in cache for a few steps
+        edges = [*range(0, n, self.block_steps), n]
+        if self.threads == 1 or len(edges) < 3 or n_layers < 2:
+            for s0, s1 in itertools.pairwise(edges):
                 self._block(input_index, step_offsets, out, s0, s1, 0, n_layers)
         else:
-            self._pipeline(input_index, step_offsets, out, self._split())
+            self._pipeline(input_index, step_offsets, out, edges, self._split())
         self._t += n
         return out
 
@@ -263,12 +265,11 @@ class StreamingSNN:
             self.spike_counts, self._cycles,
         )  # fmt: skip
 
-    def _pipeline(self, inp, offs, out, split: int) -> None:
+    def _pipeline(self, inp, offs, out, edges: list[int], split: int) -> None:
         """Layers ``< split`` run block b + 1 on this thread while the rest run block b."""
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="snn-stage2")
-        n, n_layers, size = len(offs) - 1, len(self.spec.layers), self.block_steps
-        edges = [*range(0, n, size), n]
+        n_layers = len(self.spec.layers)
         self._block(inp, offs, out, edges[0], edges[1], 0, split)
         for b in range(1, len(edges)):
             later = self._pool.submit(
