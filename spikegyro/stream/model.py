@@ -18,7 +18,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from spikegyro.errors import InputError
-from spikegyro.events.io import atomic_path
 from spikegyro.stream.stateful import SNNSpec, SRMLayerSpec, StreamingSNN
 
 if TYPE_CHECKING:
@@ -98,6 +97,8 @@ def spec_cache_dir() -> Path:
 
 def save_spec(path: str | os.PathLike, spec: SNNSpec, meta: dict[str, Any]) -> Path:
     """Write ``spec`` and the JSON-able ``meta`` to an ``.npz`` (atomically; no pickles)."""
+    from spikegyro.events.io import atomic_path  # not on the torch-free load path
+
     arrays: dict[str, np.ndarray] = {
         "input_shape": np.array(spec.input_shape, np.int64),
         "fc_weight": spec.fc_weight,
