@@ -378,23 +378,19 @@ def _scatter(spikes, g, w, w0, za, zd, z0, last, p0, t, tail_a, tail_d):  # prag
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _advance(st, mask, n0, n1, par):  # pragma: no cover
-    """Neurons ``n0..n1`` (flat): mark u >= theta, step the recursions; returns how many fired.
+    """Neurons ``n0..n1`` (flat): mark u >= theta in ``mask``, step the recursions.
 
-    One branch-free loop over contiguous memory, so it vectorises.
+    One branch-free loop over contiguous memory, so it vectorises (8 lanes: no 64-bit counter).
     """
     c, p, q, theta = par[0], par[1], par[5], par[7]
     ra, rd, rr, mk = st[0, n0:n1], st[1, n0:n1], st[2, n0:n1], mask[: n1 - n0]
-    fired = 0
     for i in range(n1 - n0):
         a = ra[i]
         d = rd[i]
-        spike = c * d + rr[i] >= theta
-        mk[i] = spike
-        fired += mk[i]
+        mk[i] = c * d + rr[i] >= theta
         rd[i] = p * (d + a)
         ra[i] = p * a
         rr[i] = q * rr[i]
-    return fired
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -404,18 +400,14 @@ def _advance_ring(st, z, mask, n0, n1, zn0, zo0, par):  # pragma: no cover
     c, p, tail_a, tail_d, q, theta = par[0], par[1], par[2], par[3], par[5], par[7]
     ra, rd, rr = st[0, n0:n1], st[1, n0:n1], st[2, n0:n1]
     zn, zo, mk = z[zn0 : zn0 + n1 - n0], z[zo0 : zo0 + n1 - n0], mask[: n1 - n0]
-    fired = 0
     for i in range(n1 - n0):
         a = ra[i] + zn[i] + tail_a * zo[i]
         d = rd[i] + tail_d * zo[i]
-        spike = c * d + rr[i] >= theta
-        mk[i] = spike
-        fired += mk[i]
+        mk[i] = c * d + rr[i] >= theta
         rd[i] = p * (d + a)
         ra[i] = p * a
         rr[i] = q * rr[i]
         zo[i] = 0.0
-    return fired
 
 
 @numba.njit(cache=True, nogil=True)
@@ -441,17 +433,16 @@ def _layer_pass(
             end += 1
         n0, n1 = s0 + pos * cout, s0 + end * cout
         if zn < 0:
-            fired = _advance(st, mask, n0, n1, par)
+            _advance(st, mask, n0, n1, par)
         else:
-            fired = _advance_ring(st, z, mask, n0, n1, zn + pos * cout, zo + pos * cout, par)
-        if fired:  # spikes are sparse: test eight flags at a time
-            words = mask.view(np.uint64)
-            for k in range((n1 - n0 + 7) // 8):
-                if words[k]:
-                    for i in range(8 * k, min(8 * k + 8, n1 - n0)):
-                        if mask[i]:
-                            out[n_spk] = n0 - s0 + i
-                            n_spk += 1
+            _advance_ring(st, z, mask, n0, n1, zn + pos * cout, zo + pos * cout, par)
+        words = mask.view(np.uint64)  # spikes are sparse: test eight flags at a time
+        for k in range((n1 - n0 + 7) // 8):
+            if words[k]:
+                for i in range(8 * k, min(8 * k + 8, n1 - n0)):
+                    if mask[i]:
+                        out[n_spk] = n0 - s0 + i
+                        n_spk += 1
         pos = end
     return n_spk
 
