@@ -156,7 +156,7 @@ class StreamingSNN:
         spec: SNNSpec,
         dtype: type = np.float32,
         threads: int = 1,
-        block_steps: int = 8,
+        block_steps: int = 16,
         input_maps: tuple[bool, ...] | None = None,
     ) -> None:
         if threads not in (1, 2) or block_steps < 1:
