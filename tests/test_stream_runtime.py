@@ -78,6 +78,8 @@ def test_pipeline_balances_the_profiled_work(spec):
     assert piped._split() == 1
     piped._cycles[2, 0] = 30  # now layer 3 is: layers 1 and 2 go first
     assert piped._split() == 2
+    piped.reset()  # a new recording: the profile restarts, the balance is remembered
+    assert not piped.profile().any() and piped._split() == 2
 
 
 @pytest.mark.parametrize("maps", [(False, False, False), (True, True, True)])

@@ -231,6 +231,9 @@ class StreamingSNN:
         self._h = np.zeros((len(self._out_kernel), self._fc.shape[0]), dtype=np.float64)
         self._t = 0
         self.spike_counts = np.zeros(len(self.spec.layers), dtype=np.int64)
+        # the pipeline's balance learns from every recording, the profile from this one
+        cycles = getattr(self, "_cycles", 0)
+        self._cycles_before = cycles + getattr(self, "_cycles_before", 0)
         self._cycles = np.zeros((len(self.spec.layers) + 1, len(PROFILE_KINDS)), dtype=np.int64)
 
     def profile(self) -> np.ndarray:
@@ -284,12 +287,12 @@ class StreamingSNN:
     def _split(self) -> int:
         """First layer of the pipeline's second stage: balances the work profiled so far (the
         neuron counts before any profile exists)."""
-        cost = self._cycles.sum(axis=1).astype(np.float64)
-        if cost.sum() == 0:
-            cost = np.append((self._st_off[1:] - self._st_off[:-1]).astype(np.float64), 0.0)
-        per_layer = cost[:-1].copy()
-        per_layer[0] += self._cycles[-1, 0]
-        per_layer[-1] += self._cycles[-1, 1]
+        cycles = (self._cycles + self._cycles_before).astype(np.float64)
+        per_layer = cycles[:-1].sum(axis=1)
+        per_layer[0] += cycles[-1, 0]  # input binning runs with layer 1, the readout with the last
+        per_layer[-1] += cycles[-1, 1]
+        if per_layer.sum() == 0:
+            per_layer = (self._st_off[1:] - self._st_off[:-1]).astype(np.float64)
         first = np.cumsum(per_layer)[:-1]
         return int(np.argmin(np.maximum(first, per_layer.sum() - first))) + 1
 
