@@ -148,7 +148,13 @@ class StreamingSNN:
         dtype: dtype of the state and weights (float32, or float64 for bit-level comparisons).
         threads: 1, or 2 to run the layers as a two-stage pipeline on two cores (a call then
             returns once both stages have finished all its steps).
-        block_steps: steps the first stage of the pipeline runs ahead of the second, ms.
+        block_steps: steps run layer by layer (a layer's weights stay in cache), and by which
+            the first stage of the pipeline runs ahead of the second, ms.
+        input_maps: per layer, keep the synaptic input as a ring of L + 1 maps (True) or scatter
+            the input spikes a second time for the kernel's tail (False); default: maps where
+            the input has more than 2 channels (a spike then reaches many weights).
+        band_kb: a layer runs the block in bands of output rows holding about this much state
+            (a band stays in the core's cache over the block); 0: whole layers.
     """
 
     def __init__(
@@ -158,6 +164,7 @@ class StreamingSNN:
         threads: int = 1,
         block_steps: int = 16,
         input_maps: tuple[bool, ...] | None = None,
+        band_kb: int = 0,
     ) -> None:
         if threads not in (1, 2) or block_steps < 1:
             raise ValueError(f"threads must be 1 or 2 and block_steps >= 1, got {threads}, "
@@ -167,7 +174,7 @@ class StreamingSNN:
         n_layers = len(spec.layers)
         geo = np.zeros((n_layers, 8), dtype=np.int64)
         par = np.zeros((n_layers, 8), dtype=np.float64)
-        klen = np.zeros((n_layers, 3), dtype=np.int64)  # L, M, input maps in a ring?
+        klen = np.zeros((n_layers, 4), dtype=np.int64)  # L, M, input maps in a ring?, band rows
         if input_maps is None:
             input_maps = tuple(shape[0] > 2 for shape in shapes[:-1])
         weights, w_off, st_off, pos_off, z_off = [], [0], [0], [0], [0]
@@ -177,7 +184,9 @@ class StreamingSNN:
             c, p = fit_alpha_kernel(layer.srm_kernel, f"layer {i + 1} srm kernel")
             a, q = fit_exp_kernel(layer.ref_kernel, f"layer {i + 1} refractory kernel")
             big_l, big_m = len(layer.srm_kernel), len(layer.ref_kernel)
-            klen[i] = big_l, big_m, bool(input_maps[i])
+            row_bytes = wout * cout * 3 * np.dtype(dtype).itemsize
+            rows = max(1, band_kb * 1024 // row_bytes) if band_kb else hout
+            klen[i] = big_l, big_m, bool(input_maps[i]), rows
             geo[i] = (cin, hin, win, cout, hout, wout, layer.stride, kh * 1000 + kw)
             # tail weights: A gets -p^L x[t-L], D gets -L p^L x[t-L], R gets -a q^(M-1) s[t-M]
             par[i] = (c, p, -(p**big_l), -big_l * p**big_l, a, q, -a * q ** (big_m - 1),
@@ -329,12 +338,15 @@ def _cycle_rate() -> float:
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _scatter(spikes, g, w, w0, za, zd, z0, last, p0, t, tail_a, tail_d):  # pragma: no cover
+def _scatter(
+    spikes, g, w, w0, za, zd, z0, last, p0, t, tail_a, tail_d, oy_a, oy_b
+):  # pragma: no cover
     """Add ``W[:, ci, ky, kx]`` to ``za[z0 + pixel * Cout:]`` for each output pixel a spike reaches
     (``A`` or a map of the ring) and mark the pixel touched at ``t``; with ``tail_a`` != 0, add
     it scaled by ``tail_a`` to ``za`` and by ``tail_d`` to ``zd`` (``A`` and ``D``) instead: the
-    kernel's truncation, L steps later, when the pixel is still live."""
-    cin, win, cout, hout, wout, stride, kk = g[0], g[2], g[3], g[4], g[5], g[6], g[7]
+    kernel's truncation, L steps later, when the pixel is still live. Only output rows
+    ``oy_a..oy_b`` are written."""
+    cin, win, cout, wout, stride, kk = g[0], g[2], g[3], g[5], g[6], g[7]
     kh, kw = kk // 1000, kk % 1000
     tail = tail_a != 0.0
     n_spikes = spikes.shape[0]
@@ -350,7 +362,7 @@ def _scatter(spikes, g, w, w0, za, zd, z0, last, p0, t, tail_a, tail_d):  # prag
         ix = pix - iy * win
         # the output pixels whose window holds (iy, ix): o * stride + k = i with 0 <= k < kh
         # (ranges computed once per pixel: integer division is slow in the inner loops)
-        oy0, oy1 = max(0, (iy - kh + stride) // stride), min(hout - 1, iy // stride)
+        oy0, oy1 = max(oy_a, (iy - kh + stride) // stride), min(oy_b - 1, iy // stride)
         ox0, ox1 = max(0, (ix - kw + stride) // stride), min(wout - 1, ix // stride)
         for oy in range(oy0, oy1 + 1):
             ky = iy - oy * stride
@@ -415,12 +427,12 @@ def _advance_ring(st, z, mask, n0, n1, zn0, zo0, par):  # pragma: no cover
 
 @numba.njit(cache=True, nogil=True)
 def _layer_pass(
-    st, s0, z, zn, zo, last, p0, n_pos, cout, t, horizon, par, mask, out
+    st, s0, z, zn, zo, last, p0, pos, n_pos, cout, t, horizon, par, mask, out
 ):  # pragma: no cover
-    """Advance every pixel touched in the last ``horizon`` steps, in runs of adjacent pixels;
-    write the flat indices of the neurons that fired to ``out``; returns their number."""
+    """Advance every pixel ``pos..n_pos`` touched in the last ``horizon`` steps, in runs of
+    adjacent pixels; write the flat indices of the neurons that fired to ``out``; returns their
+    number."""
     n_spk = 0
-    pos = 0
     while pos < n_pos:
         age = t - last[p0 + pos]
         if age > horizon:
@@ -451,6 +463,14 @@ def _layer_pass(
 
 
 @numba.njit(cache=True, nogil=True)
+def _spike_range(ring, off, length, cap, ring_cnt, cnt_off, t, lo, hi):  # pragma: no cover
+    """The part of step ``t``'s (sorted) spike list in ``[lo, hi)``, as a view."""
+    base = off + (t % length) * cap
+    spikes = ring[base : base + ring_cnt[cnt_off + t % length]]
+    return spikes[np.searchsorted(spikes, lo) : np.searchsorted(spikes, hi)]
+
+
+@numba.njit(cache=True, nogil=True)
 def _run_block(  # pragma: no cover
     inp, offs, s_begin, s_end, l0, l1, t_base, out, geo, par, klen, w, w_off, st, st_off, z,
     z_off, last, pos_off, ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off, seen, fc, kout,
@@ -473,59 +493,70 @@ def _run_block(  # pragma: no cover
                 seen[idx] = t
                 ring[r0 + m] = idx
                 m += 1
+        ring[r0 : r0 + m].sort()  # ordered like the lists layers emit, for bands and grouping
         ring_cnt[cnt_off[0] + t % ring_len[0]] = m
         cycles[n_layers, 0] += _rdtsc() - c0
     for li in range(l0, l1):
-        for s in range(s_begin, s_end):
-            t = t_base + s
-            c0 = _rdtsc()
-            g = geo[li]
-            cout, n_pos = g[3], g[4] * g[5]
-            big_l, big_m = klen[li, 0], klen[li, 1]
-            s0, p0 = st_off[li], pos_off[li]
-            n_neurons = n_pos * cout
-            slot = t % ring_len[li]
-            base = ring_off[li] + slot * ring_cap[li]
-            spikes = ring[base : base + ring_cnt[cnt_off[li] + slot]]
-            if klen[li, 2]:  # synaptic input into map t of the ring, read back L steps later
-                zn = z_off[li] + (t % (big_l + 1)) * n_neurons
-                zo = z_off[li] + ((t + 1) % (big_l + 1)) * n_neurons
-                _scatter(spikes, g, w, w_off[li], z, z, zn, last, p0, t, 0.0, 0.0)
-            else:
-                zn = zo = -1
-                _scatter(spikes, g, w, w_off[li], st[0], st[1], s0, last, p0, t, 0.0, 0.0)
-            c1 = _rdtsc()
-            cycles[li, 0] += c1 - c0
-            if zn < 0 and t >= big_l:  # the same spikes L steps later, with the tail weights
-                slot = (t - big_l) % ring_len[li]
-                base = ring_off[li] + slot * ring_cap[li]
-                cnt = ring_cnt[cnt_off[li] + slot]
-                _scatter(ring[base : base + cnt], g, w, w_off[li], st[0], st[1], s0, last, p0, t,
-                         par[li, 2], par[li, 3])  # fmt: skip
-            c2 = _rdtsc()
-            cycles[li, 1] += c2 - c1
-            # refractory feedback of this layer's own spikes, one step and M steps ago
-            for lag in (1, big_m):
-                if t >= lag:
-                    amp = par[li, 4] if lag == 1 else par[li, 6]
-                    slot = (t - lag) % ring_len[li + 1]
-                    base = ring_off[li + 1] + slot * ring_cap[li + 1]
-                    for j in range(ring_cnt[cnt_off[li + 1] + slot]):
-                        n = ring[base + j]
-                        st[2, s0 + n] += amp
-                        if lag == 1:
-                            last[p0 + n // cout] = t
-            c3 = _rdtsc()
-            cycles[li, 2] += c3 - c2
-            slot = t % ring_len[li + 1]
-            obase = ring_off[li + 1] + slot * ring_cap[li + 1]
-            n_spk = _layer_pass(
-                st, s0, z, zn, zo, last, p0, n_pos, cout, t, max(big_l, big_m) + 1, par[li], mask,
-                ring[obase : obase + ring_cap[li + 1]],
-            )  # fmt: skip
-            ring_cnt[cnt_off[li + 1] + slot] = n_spk
-            spike_counts[li] += n_spk
-            cycles[li, 3] += _rdtsc() - c3
+        g = geo[li]
+        cin, win, cout, hout, wout, stride, kh = g[0], g[2], g[3], g[4], g[5], g[6], g[7] // 1000
+        big_l, big_m = klen[li, 0], klen[li, 1]
+        s0, p0 = st_off[li], pos_off[li]
+        n_neurons = hout * wout * cout
+        # bands of output rows, each run over the whole block while its state stays in cache
+        for oy_a in range(0, hout, klen[li, 3]):
+            oy_b = min(hout, oy_a + klen[li, 3])
+            in_lo = oy_a * stride * win * cin  # input units whose 3x3 window reaches the band
+            in_hi = min(g[1], (oy_b - 1) * stride + kh) * win * cin
+            own_lo, own_hi = oy_a * wout * cout, oy_b * wout * cout
+            for s in range(s_begin, s_end):
+                t = t_base + s
+                c0 = _rdtsc()
+                spikes = _spike_range(ring, ring_off[li], ring_len[li], ring_cap[li], ring_cnt,
+                                      cnt_off[li], t, in_lo, in_hi)  # fmt: skip
+                if klen[li, 2]:  # synaptic input into map t of the ring, read back L steps later
+                    zn = z_off[li] + (t % (big_l + 1)) * n_neurons
+                    zo = z_off[li] + ((t + 1) % (big_l + 1)) * n_neurons
+                    _scatter(spikes, g, w, w_off[li], z, z, zn, last, p0, t, 0.0, 0.0, oy_a, oy_b)
+                else:
+                    zn = zo = -1
+                    _scatter(spikes, g, w, w_off[li], st[0], st[1], s0, last, p0, t, 0.0, 0.0,
+                             oy_a, oy_b)  # fmt: skip
+                c1 = _rdtsc()
+                cycles[li, 0] += c1 - c0
+                if zn < 0 and t >= big_l:  # the same spikes L steps later, with the tail weights
+                    spikes = _spike_range(ring, ring_off[li], ring_len[li], ring_cap[li],
+                                          ring_cnt, cnt_off[li], t - big_l, in_lo,
+                                          in_hi)  # fmt: skip
+                    _scatter(spikes, g, w, w_off[li], st[0], st[1], s0, last, p0, t, par[li, 2],
+                             par[li, 3], oy_a, oy_b)  # fmt: skip
+                c2 = _rdtsc()
+                cycles[li, 1] += c2 - c1
+                # refractory feedback of this layer's own spikes, one step and M steps ago
+                for lag in (1, big_m):
+                    if t >= lag:
+                        amp = par[li, 4] if lag == 1 else par[li, 6]
+                        own = _spike_range(ring, ring_off[li + 1], ring_len[li + 1],
+                                           ring_cap[li + 1], ring_cnt, cnt_off[li + 1], t - lag,
+                                           own_lo, own_hi)  # fmt: skip
+                        for n in own:
+                            st[2, s0 + n] += amp
+                            if lag == 1:
+                                last[p0 + n // cout] = t
+                c3 = _rdtsc()
+                cycles[li, 2] += c3 - c2
+                # this band's spikes follow those of the bands above in step t's list
+                cnt = cnt_off[li + 1] + t % ring_len[li + 1]
+                if oy_a == 0:
+                    ring_cnt[cnt] = 0
+                obase = ring_off[li + 1] + (t % ring_len[li + 1]) * ring_cap[li + 1]
+                n_spk = _layer_pass(
+                    st, s0, z, zn, zo, last, p0, oy_a * wout, oy_b * wout, cout, t,
+                    max(big_l, big_m) + 1, par[li], mask,
+                    ring[obase + ring_cnt[cnt] : obase + ring_cap[li + 1]],
+                )  # fmt: skip
+                ring_cnt[cnt] += n_spk
+                spike_counts[li] += n_spk
+                cycles[li, 3] += _rdtsc() - c3
     for s in range(s_begin, s_end if l1 == n_layers else s_begin):
         t = t_base + s
         # -- readout: global average of the last layer's spikes -> dense -> psp (exact FIR)
