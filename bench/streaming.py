@@ -1,24 +1,32 @@
-"""Real-time factor of streaming SNN-6 (240x180, one CPU thread): event-driven vs naive dense.
+"""Real-time factor of streaming SNN-6 (240x180): event-driven on 1 and 2 threads vs naive dense.
 
-Both run the same network step by step (1 ms per step, state carried over) on simulated test
-sequences, in the same process:
+All run the same network step by step (1 ms per step, state carried over) on simulated test
+sequences, in the same process, one after the other on each sequence:
 
 - event-driven: :class:`spikegyro.stream.stateful.StreamingSNN` (Numba; sparse scatter of the
   synaptic input, exact recursions for the PSP and refractory kernels, dense work only on pixels
-  touched in the last few ms);
+  touched in the last few ms), with ``threads=1`` and with ``threads=2`` (the layers split in
+  two stages that run as a pipeline on two cores);
 - naive dense: per step and layer, the PSP of the input over a ring buffer of past input maps
   (the truncated FIR), a full ``torch.conv2d``, the refractory response from a ring of future
-  potentials, and the threshold (torch, dense tensors).
+  potentials, and the threshold (torch, dense tensors, one thread).
 
 Real-time factor = seconds of events processed per second of wall time (> 1: keeps up with the
-camera). The two outputs are compared on the steps both ran.
+camera); CPU time (``time.process_time``, all threads of the process) is printed beside it, as
+on a shared machine wall time includes waiting for a core. The dense ratio (event-driven speed
+over dense speed) is measured on the same events in the same run, so it is comparable across
+machines and loads. The outputs of all paths are compared on the steps they share, and the
+float32 engine against a float64 one (the accuracy cost of single precision). The last table is
+the single-thread engine's own cycle-counter profile: microseconds per step per layer and kind
+of work.
 
-    .venv/bin/python bench/streaming.py [--sequences 3] [--duration-ms 500] [--dense-steps 200]
+    .venv/bin/python bench/streaming.py --checkpoint CKPT [--sequences 3] [--duration-ms 500]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import numpy as np
@@ -29,7 +37,7 @@ from spikegyro.models.registry import load_checkpoint
 from spikegyro.models.snn6 import INIT_GAIN, SNN6
 from spikegyro.sim.dataset import SimConfig, simulate_sequence
 from spikegyro.stream.model import spec_from_model
-from spikegyro.stream.stateful import SNNSpec, StreamingSNN
+from spikegyro.stream.stateful import PROFILE_KINDS, SNNSpec, StreamingSNN
 
 
 class DenseStepper:
@@ -83,10 +91,21 @@ class DenseStepper:
         self.t += 1
         return taps @ self.h
 
+    def run(self, frames: torch.Tensor) -> np.ndarray:
+        """Step through (steps, 2, H, W) input frames; the readout, (steps, outputs)."""
+        return torch.stack([self.step(frame) for frame in frames]).numpy()
+
 
 def simulated_sequences(n: int, duration_ms: int, seed: int) -> list:
     config = SimConfig(duration_ms=duration_ms)
     return [simulate_sequence(config, i, seed, split="test") for i in range(n)]
+
+
+def timed(fn, *args) -> tuple[np.ndarray, float, float]:
+    """(result, wall seconds, CPU seconds of the whole process)."""
+    start, cpu = time.perf_counter(), time.process_time()
+    result = fn(*args)
+    return result, time.perf_counter() - start, time.process_time() - cpu
 
 
 def main() -> None:
@@ -95,7 +114,10 @@ def main() -> None:
     parser.add_argument("--duration-ms", type=int, default=500)
     parser.add_argument("--dense-steps", type=int, default=200, help="steps of the dense run")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--dtype", choices=["float32", "float64"], default="float32")
+    parser.add_argument("--block-steps", type=int, default=16, help="engine block, ms")
+    parser.add_argument(
+        "--band-kb", type=int, default=0, help="engine bands of output rows, kB of state (0: off)"
+    )
     parser.add_argument(
         "--gain",
         type=float,
@@ -106,7 +128,6 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     torch.manual_seed(args.seed)
-    dtype = np.dtype(args.dtype).type
 
     if args.checkpoint:
         model, payload = load_checkpoint(args.checkpoint)
@@ -116,22 +137,32 @@ def main() -> None:
     else:
         model = SNN6(init_gain=args.gain).eval()  # random weights scaled so every layer spikes
     spec = spec_from_model(model, (2, 180, 240))
-    engine = StreamingSNN(spec, dtype=dtype)
-    engine.run(np.zeros(1, np.int64), np.array([0, 1, 1]))  # compile (or load the cache)
+    engines = {
+        threads: StreamingSNN(
+            spec, threads=threads, block_steps=args.block_steps, band_kb=args.band_kb
+        )
+        for threads in (1, 2)
+    }
+    exact = StreamingSNN(spec_from_model(model, (2, 180, 240), np.float64), np.float64)
+    for engine in (*engines.values(), exact):  # compile (or load the cache)
+        engine.run(np.zeros(1, np.int64), np.array([0, 1, 1]))
 
     t_sim = time.perf_counter()
     sequences = simulated_sequences(args.sequences, args.duration_ms, args.seed)
     print(
         f"simulated {len(sequences)} test sequences of {args.duration_ms} ms at 240x180 "
-        f"in {time.perf_counter() - t_sim:.1f} s; one CPU thread, state dtype {args.dtype}, "
+        f"in {time.perf_counter() - t_sim:.1f} s; {os.cpu_count()} CPUs, load average "
+        f"{os.getloadavg()[0]:.1f}; block {args.block_steps} ms, bands {args.band_kb} kB; "
         + (args.checkpoint or f"random SNN-6 with init gain {args.gain}")
     )
-    header = (
+    print(
         f"{'seq':>3} {'events':>8} {'input%':>6} {'spikes/step L1..L5 (% of neurons)':>36}"
-        f" {'event-driven':>13} {'dense':>8} {'speed-up':>8} {'max |diff|':>10}"
+        f" {'1 thread':>9} {'2 threads':>9} {'dense':>8} {'dense ratio':>11}"
+        f" {'max|d| 2thr':>11} {'max|d| dense':>12} {'max|d| f64':>10}"
     )
-    print(header)
-    totals = np.zeros(6)  # wall, cpu, steps for event-driven; the same for dense
+    # wall, cpu, steps per path; profile of the one-thread engine, cycles -> seconds
+    totals = {key: np.zeros(3) for key in ("1 thread", "2 threads", "dense")}
+    profile = np.zeros((len(spec.layers) + 1, len(PROFILE_KINDS)))
     n_neurons = np.array([c * h * w for c, h, w in spec.layer_shapes()])
     for i, rec in enumerate(sequences):
         ev = rec.events
@@ -139,11 +170,17 @@ def main() -> None:
         k = ev.t // 1000
         index = (ev.y.astype(np.int64) * 240 + ev.x) * 2 + ev.p
         offsets = np.searchsorted(k, np.arange(steps + 1))
-        engine.reset()
-        start, cpu = time.perf_counter(), time.process_time()
-        out = engine.run(index, offsets)
-        wall_ev, cpu_ev = time.perf_counter() - start, time.process_time() - cpu
-        rates = engine.spike_counts / steps / n_neurons * 100
+        outs, rtf = {}, {}
+        for threads, engine in engines.items():
+            engine.reset()
+            key = "1 thread" if threads == 1 else "2 threads"
+            outs[key], wall, cpu = timed(engine.run, index, offsets)
+            totals[key] += (wall, cpu, steps)
+            rtf[key] = steps / 1000 / wall
+        profile += engines[1].profile()
+        rates = engines[1].spike_counts / steps / n_neurons * 100
+        exact.reset()
+        out64 = exact.run(index, offsets)
 
         dense = DenseStepper(spec)
         n_dense = min(args.dense_steps, steps)
@@ -151,27 +188,41 @@ def main() -> None:
         keep = k < n_dense
         frames[k[keep], ev.p[keep], ev.y[keep], ev.x[keep]] = 1.0
         frames_t = torch.from_numpy(frames)
-        start, cpu = time.perf_counter(), time.process_time()
-        out_dense = torch.stack([dense.step(frames_t[s]) for s in range(n_dense)]).numpy()
-        wall_dense, cpu_dense = time.perf_counter() - start, time.process_time() - cpu
-        diff = np.abs(out_dense - out[:n_dense]).max()
+        out_dense, wall, cpu = timed(dense.run, frames_t)
+        totals["dense"] += (wall, cpu, n_dense)
+        rtf["dense"] = n_dense / 1000 / wall
 
+        one = outs["1 thread"]
         active = np.mean([np.unique(index[offsets[s] : offsets[s + 1]]).size for s in range(steps)])
-        rtf_ev = steps / 1000 / wall_ev
-        rtf_dense = n_dense / 1000 / wall_dense
         rate_text = " ".join(f"{r:5.2f}" for r in rates)
         print(
-            f"{i:>3} {len(ev):>8} {active / (2 * 240 * 180) * 100:>6.2f} {rate_text:>36} "
-            f"{rtf_ev:>12.2f}x {rtf_dense:>7.3f}x {rtf_ev / rtf_dense:>7.1f}x {diff:>10.2e}"
+            f"{i:>3} {len(ev):>8} {active / (2 * 240 * 180) * 100:>6.2f} {rate_text:>36}"
+            f" {rtf['1 thread']:>8.2f}x {rtf['2 threads']:>8.2f}x {rtf['dense']:>7.3f}x"
+            f" {rtf['1 thread'] / rtf['dense']:>10.1f}x"
+            f" {np.abs(outs['2 threads'] - one).max():>11.1e}"
+            f" {np.abs(out_dense - one[:n_dense]).max():>12.1e}"
+            f" {np.abs(out64 - one).max():>10.1e}"
         )
-        totals += (wall_ev, cpu_ev, steps, wall_dense, cpu_dense, n_dense)
-    w_ev, c_ev, n_ev, w_de, c_de, n_de = totals
-    for label, t_ev, t_de in (("wall time", w_ev, w_de), ("CPU time", c_ev, c_de)):
+    dense_us = totals["dense"][0] / totals["dense"][2] * 1e6
+    for key in ("1 thread", "2 threads", "dense"):
+        wall, cpu, n = totals[key]
+        ratio = "" if key == "dense" else f", dense ratio {dense_us / (wall / n * 1e6):.1f}x"
         print(
-            f"all, {label}: event-driven {n_ev / 1000 / t_ev:.2f}x real time "
-            f"({t_ev / n_ev * 1e6:.0f} us/step), naive dense {n_de / 1000 / t_de:.3f}x "
-            f"({t_de / n_de * 1e6:.0f} us/step), speed-up {(t_de / n_de) / (t_ev / n_ev):.1f}x"
+            f"all, {key:>9}: {n / 1000 / wall:6.3f}x real time ({wall / n * 1e6:6.0f} us/step "
+            f"wall, {cpu / n * 1e6:6.0f} us/step CPU){ratio}"
         )
+    steps_total = totals["1 thread"][2]
+    per_step = profile / steps_total * 1e6
+    print(f"\nwhere the one-thread time goes (us per step, cycle counter; {PROFILE_KINDS}):")
+    print(f"{'layer':>8} " + " ".join(f"{kind:>13}" for kind in PROFILE_KINDS)
+          + f" {'total':>8} {'share':>6}")  # fmt: skip
+    grand = per_step.sum()
+    for li, row in enumerate(per_step[:-1]):
+        print(f"{li + 1:>8} " + " ".join(f"{v:>13.1f}" for v in row)
+              + f" {row.sum():>8.1f} {row.sum() / grand * 100:>5.1f}%")  # fmt: skip
+    io = per_step[-1]
+    print(f"{'input':>8} {io[0]:>13.1f}  readout {io[1]:.1f}; total {grand:.0f} us/step "
+          f"(wall of the same runs: {totals['1 thread'][0] / steps_total * 1e6:.0f})")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -6,22 +6,55 @@ turns :class:`~spikegyro.errors.InputError` into one line on stderr and exit cod
 
 from __future__ import annotations
 
+import importlib
 import sys
+from typing import Any
 
 import typer
+from typer.core import TyperGroup
 
 from spikegyro import __version__
-from spikegyro.baselines import commands as baselines_commands
-from spikegyro.demo import demo_command
 from spikegyro.errors import InputError
-from spikegyro.evaluate import commands as evaluate_commands
-from spikegyro.events import commands as events_commands
-from spikegyro.sim import commands as sim_commands
-from spikegyro.stream import commands as stream_commands
-from spikegyro.train import commands as train_commands
-from spikegyro.train.relay import relay_log_command
+
+_COMMANDS: dict[str, str] = {
+    "info": "spikegyro.events.commands:info",
+    "convert": "spikegyro.events.commands:convert_command",
+    "demo": "spikegyro.demo:demo_command",
+    "simulate": "spikegyro.sim.commands:simulate_dataset",
+    "export-official": "spikegyro.sim.commands:export_official_command",
+    "show": "spikegyro.sim.commands:show",
+    "evaluate": "spikegyro.evaluate.commands:evaluate",
+    "report": "spikegyro.evaluate.commands:report",
+    "train": "spikegyro.train.commands:train_command",
+    "relay-log": "spikegyro.train.relay:relay_log_command",
+    "predict": "spikegyro.stream.commands:predict",
+    "baseline": "spikegyro.baselines.commands:app",
+}
+"""Command name -> ``module:attribute`` (a command function or a Typer sub-app). A stage's module
+is imported only when its command runs or ``--help`` lists it, so ``spikegyro predict`` does not
+pay for torch or matplotlib."""
+
+
+class _LazyGroup(TyperGroup):
+    def list_commands(self, ctx: typer.Context) -> list[str]:
+        return [*super().list_commands(ctx), *_COMMANDS]
+
+    def get_command(self, ctx: typer.Context, cmd_name: str) -> Any:  # a click Command or None
+        if cmd_name not in _COMMANDS:
+            return super().get_command(ctx, cmd_name)
+        module, attribute = _COMMANDS[cmd_name].split(":")
+        target = getattr(importlib.import_module(module), attribute)
+        if isinstance(target, typer.Typer):
+            command = typer.main.get_group(target)
+            command.name = cmd_name
+            return command
+        single = typer.Typer()
+        single.command(cmd_name)(target)
+        return typer.main.get_command(single)
+
 
 app = typer.Typer(
+    cls=_LazyGroup,
     name="spikegyro",
     help="Event camera as a gyroscope: simulate, train, evaluate and run spiking networks.",
     no_args_is_help=True,
@@ -41,22 +74,6 @@ def _root(
     if version:
         typer.echo(__version__)
         raise typer.Exit()
-
-
-app.command("info")(events_commands.info)
-app.command("convert")(events_commands.convert_command)
-
-
-app.command("demo")(demo_command)
-app.command("simulate")(sim_commands.simulate_dataset)
-app.command("export-official")(sim_commands.export_official_command)
-app.command("show")(sim_commands.show)
-app.command("evaluate")(evaluate_commands.evaluate)
-app.command("report")(evaluate_commands.report)
-app.command("train")(train_commands.train_command)
-app.command("relay-log")(relay_log_command)
-app.command("predict")(stream_commands.predict)
-app.add_typer(baselines_commands.app, name="baseline")
 
 
 def main() -> None:

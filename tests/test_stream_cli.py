@@ -17,6 +17,12 @@ from spikegyro.models.snn6 import SNN6
 from spikegyro.stream.writer import read_predictions
 
 
+@pytest.fixture(autouse=True)
+def _spec_cache(tmp_path, monkeypatch):
+    # predict caches the network's spec; keep it out of the user's home
+    monkeypatch.setenv("SPIKEGYRO_CACHE", str(tmp_path / "spec-cache"))
+
+
 def _run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "spikegyro", "predict", *map(str, args)],

@@ -3,16 +3,27 @@
 - :mod:`spikegyro.stream.stateful`: ``StreamingSNN`` runs an SRM network 1 ms per step with state
   carried across calls, equal to the batch forward (exact recursions for the truncated kernels).
 - :mod:`spikegyro.stream.model`: ``spec_from_model`` / ``load_streaming_model`` (checkpoint ->
-  engine); ``DEFAULT_CHECKPOINT`` is the shipped pretrained SNN-6.
+  engine, torch-free once the checkpoint's spec is cached); ``DEFAULT_CHECKPOINT`` is the
+  shipped pretrained SNN-6.
 - :mod:`spikegyro.stream.predict`: ``predict_stream`` (file -> reprojection -> 1 ms bins -> engine
   -> prediction file, flat memory), ``event_mapper``, ``model_camera``, ``ErrorStats``.
 - :mod:`spikegyro.stream.writer`: prediction files (CSV/HDF5), also used by the baselines.
 - :mod:`spikegyro.stream.commands`: ``spikegyro predict``.
 
-Only the light writer API is imported here, so baselines can write predictions without loading
-the network code.
+The writer API is re-exported lazily, so importing a submodule (e.g. the engine, to load a
+cached network without torch) does not pull in the event readers.
 """
 
-from spikegyro.stream.writer import PredictionWriter, read_predictions, write_predictions
+from __future__ import annotations
+
+from typing import Any
 
 __all__ = ["PredictionWriter", "read_predictions", "write_predictions"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in __all__:
+        from spikegyro.stream import writer
+
+        return getattr(writer, name)
+    raise AttributeError(f"module 'spikegyro.stream' has no attribute '{name}'")

@@ -45,6 +45,13 @@ def predict(
     out: Path = typer.Option(Path("pred.csv"), "--out", "-o", help="Output .csv or .h5."),
     width: int = typer.Option(None, help="Sensor width, pixels (text files default to 240)."),
     height: int = typer.Option(None, help="Sensor height, pixels (text files default to 180)."),
+    threads: int = typer.Option(
+        1,
+        "--threads",
+        min=1,
+        max=2,
+        help="CPU threads: 2 runs the network's layers as a two-stage pipeline on two cores.",
+    ),
 ) -> None:
     """Predict ω = (ω_x, ω_y, ω_z) in rad/s every 1 ms, streaming, with a real-time-factor bar."""
     check_prediction_path(out)
@@ -53,7 +60,7 @@ def predict(
     if calib_file is not None:
         console.print(f"using the calibration {calib_file}")
     sensor = (width, height) if width and height else None
-    engine, payload = load_streaming_model(checkpoint or DEFAULT_CHECKPOINT)
+    engine, payload = load_streaming_model(checkpoint or DEFAULT_CHECKPOINT, threads=threads)
     span = read_time_span(events)
     total_s = None
     if span is not None:

@@ -1,21 +1,34 @@
-"""From a trained SNN (module or checkpoint) to the stateful streaming engine."""
+"""From a trained SNN (module or checkpoint) to the stateful streaming engine.
+
+Building the engine needs only the network's weights and constants (an :class:`SNNSpec`), not
+torch: the first load of a checkpoint derives the spec with torch and keeps it in a small
+``.npz`` in the user's cache, keyed by the checkpoint's SHA-256, so later loads (every
+``spikegyro predict`` after the first) neither import torch nor unpickle the checkpoint.
+"""
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
+import zipfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from torch import nn
 
 from spikegyro.errors import InputError
-from spikegyro.models.registry import PRETRAINED_SNN6, load_checkpoint
-from spikegyro.snn.layers import GASP, SRMConv, SRMDense
 from spikegyro.stream.stateful import SNNSpec, SRMLayerSpec, StreamingSNN
 
-DEFAULT_CHECKPOINT = PRETRAINED_SNN6
-"""The shipped pretrained SNN-6 (``spikegyro/data/pretrained/snn6.pt``)."""
+if TYPE_CHECKING:
+    from torch import nn
+
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "pretrained" / "snn6.pt"
+"""The shipped pretrained SNN-6 (``spikegyro.models.registry.PRETRAINED_SNN6``, spelled out here
+because importing :mod:`spikegyro.models` imports torch)."""
+
+SPEC_CACHE_VERSION = 1
+_META_KEYS = ("format", "model", "model_kwargs", "input")
 
 
 def _numpy(tensor: Any, dtype: type) -> np.ndarray:
@@ -33,6 +46,8 @@ def spec_from_model(
         input_shape: (2, height, width) of the input spike tensor.
         dtype: dtype of weights and kernels in the spec (float64 for bit-level comparisons).
     """
+    from spikegyro.snn.layers import GASP, SRMConv, SRMDense
+
     children = list(model.modules())
     convs = [m for m in children if isinstance(m, SRMConv)]
     dense = [m for m in children if isinstance(m, SRMDense)]
@@ -71,8 +86,75 @@ def input_shape_of(input_spec: dict[str, Any]) -> tuple[int, int, int]:
     return 2, max(1, round(height * scale)), max(1, round(width * scale))
 
 
-def load_streaming_model(path: str | os.PathLike) -> tuple[StreamingSNN, dict[str, Any]]:
-    """Load a checkpoint and build its streaming engine; returns (engine, checkpoint dict)."""
+def spec_cache_dir() -> Path:
+    """Where derived specs live: ``$SPIKEGYRO_CACHE``, else ``$XDG_CACHE_HOME/spikegyro``, else
+    ``~/.cache/spikegyro``."""
+    if os.environ.get("SPIKEGYRO_CACHE"):
+        return Path(os.environ["SPIKEGYRO_CACHE"])
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    return (Path(xdg) if xdg else Path.home() / ".cache") / "spikegyro"
+
+
+def save_spec(path: str | os.PathLike, spec: SNNSpec, meta: dict[str, Any]) -> Path:
+    """Write ``spec`` and the JSON-able ``meta`` to an ``.npz`` (atomically; no pickles)."""
+    from spikegyro.events.io import atomic_path  # not on the torch-free load path
+
+    arrays: dict[str, np.ndarray] = {
+        "input_shape": np.array(spec.input_shape, np.int64),
+        "fc_weight": spec.fc_weight,
+        "out_kernel": spec.out_kernel,
+        "meta": np.array(json.dumps({**meta, "spec_version": SPEC_CACHE_VERSION})),
+    }
+    for i, layer in enumerate(spec.layers):
+        arrays[f"layer{i}_weight"] = layer.weight
+        arrays[f"layer{i}_srm_kernel"] = layer.srm_kernel
+        arrays[f"layer{i}_ref_kernel"] = layer.ref_kernel
+        arrays[f"layer{i}_stride_theta"] = np.array([layer.stride, layer.theta], np.float64)
+    path = Path(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, **arrays)
+    return path
+
+
+def load_spec(path: str | os.PathLike) -> tuple[SNNSpec, dict[str, Any]]:
+    """Read what :func:`save_spec` wrote; returns (spec, meta)."""
+    with np.load(path, allow_pickle=False) as f:
+        meta = json.loads(str(f["meta"]))
+        layers = []
+        while f"layer{len(layers)}_weight" in f:
+            i = len(layers)
+            stride, theta = f[f"layer{i}_stride_theta"]
+            layers.append(
+                SRMLayerSpec(
+                    weight=f[f"layer{i}_weight"],
+                    stride=int(stride),
+                    theta=float(theta),
+                    srm_kernel=f[f"layer{i}_srm_kernel"],
+                    ref_kernel=f[f"layer{i}_ref_kernel"],
+                )
+            )
+        spec = SNNSpec(
+            input_shape=tuple(int(v) for v in f["input_shape"]),
+            layers=tuple(layers),
+            fc_weight=f["fc_weight"],
+            out_kernel=f["out_kernel"],
+        )
+    return spec, meta
+
+
+def _check_streamable(path: Path, meta: dict[str, Any]) -> None:
+    spec = meta.get("input", {})
+    if spec.get("representation", "spikes") != "spikes" or spec.get("output") == "window_mean":
+        raise InputError(
+            f"{path}: model '{meta.get('model')}' takes {spec.get('representation')} windows; "
+            "predict streams spiking networks (spike input, one output per step) only."
+        )
+
+
+def load_streaming_spec(path: str | os.PathLike) -> tuple[SNNSpec, dict[str, Any]]:
+    """The :class:`SNNSpec` of a checkpoint and its metadata (format, model, model_kwargs,
+    input; no weights), from the spec cache when it holds this exact file, else through torch
+    (then cached; a cache that cannot be written is skipped)."""
     path = Path(path)
     if not path.exists():
         if path == DEFAULT_CHECKPOINT:
@@ -81,11 +163,34 @@ def load_streaming_model(path: str | os.PathLike) -> tuple[StreamingSNN, dict[st
                 "pass --checkpoint PATH."
             )
         raise InputError(f"{path}: no such checkpoint file.")
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    cached = spec_cache_dir() / f"snn-spec-{digest[:24]}.npz"
+    if cached.exists():
+        try:
+            spec, meta = load_spec(cached)
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile):
+            pass  # unreadable (another version wrote it?): derive it again
+        else:
+            if meta.get("sha256") == digest and meta.get("spec_version") == SPEC_CACHE_VERSION:
+                _check_streamable(path, meta)
+                return spec, meta
+    from spikegyro.models.registry import load_checkpoint
+
     model, payload = load_checkpoint(path)
-    spec = payload.get("input", {})
-    if spec.get("representation", "spikes") != "spikes" or spec.get("output") == "window_mean":
-        raise InputError(
-            f"{path}: model '{payload.get('model')}' takes {spec.get('representation')} windows; "
-            "predict streams spiking networks (spike input, one output per step) only."
-        )
-    return StreamingSNN(spec_from_model(model, input_shape_of(spec))), payload
+    meta = {key: payload.get(key) for key in _META_KEYS}
+    _check_streamable(path, meta)
+    spec = spec_from_model(model, input_shape_of(meta["input"] or {}))
+    try:
+        cached.parent.mkdir(parents=True, exist_ok=True)
+        save_spec(cached, spec, {**meta, "sha256": digest})
+    except OSError:
+        pass  # a read-only home: every run derives the spec, nothing else changes
+    return spec, meta
+
+
+def load_streaming_model(
+    path: str | os.PathLike, threads: int = 1
+) -> tuple[StreamingSNN, dict[str, Any]]:
+    """Build the streaming engine of a checkpoint; returns (engine, metadata without weights)."""
+    spec, meta = load_streaming_spec(path)
+    return StreamingSNN(spec, threads=threads), meta

@@ -16,31 +16,41 @@ feeding each input a second time, L (or M) steps later, with the weight of the k
     R[t] = q R[t-1] + a s[t-1] - a q^(M-1) s[t-M]
 
 (the impulse response of ``c D`` is ``c k p^k`` for k < L and exactly 0 from k = L on). The
-synaptic input ``x[t] = W * s_in[t]`` is kept in a ring of the last L + 1 steps, so the delayed
-term is read back instead of being scattered a second time; past spike *lists* (sparse) feed the
-refractory tail.
+synaptic input ``x = W * s_in`` is never stored as a map: each layer keeps the *lists* of input
+spikes of its last L steps (and of its own spikes, M steps) and scatters them straight into the
+state, once with weight 1 into ``A`` when they arrive and once with the tail weights into ``A``
+and ``D`` L steps later. The only dense per-neuron memory is ``A, D, R`` (12 bytes a neuron in
+float32: 4 MB for SNN-6 at 240x180, which stays in the last-level cache).
 
-Work per step:
+Work per step and layer (the kinds :attr:`StreamingSNN.profile` times):
 
-- sparse: each input spike scatters one column of 3x3 weights (``Cout`` values per reached
-  output pixel) into this step's slot of the ring; each output spike touches its own ``R``;
-- dense, but only over output pixels touched in the last ``max(L, M)`` steps: one fused pass
-  that takes in ``x[t]`` and ``x[t-L]``, thresholds ``u`` and advances the recursions. A pixel
-  untouched for longer holds exactly zero state (every contribution has been cancelled), so it
-  is skipped.
+- scatter: each input spike adds one column of 3x3 weights (``Cout`` values per reached output
+  pixel) to ``A``; the spikes of L steps ago add it again, scaled, to ``A`` and ``D`` (tail);
+- feedback: each output spike of one and of M steps ago touches its own ``R``;
+- update: one fused pass over the output pixels touched in the last ``max(L, M)`` steps that
+  thresholds ``u``, lists the neurons that fire and advances the recursions. A pixel untouched
+  for longer holds exactly zero state (every contribution has been cancelled), so it is skipped.
 
 The kernels run in Numba (compiled once, cached on disk): the inner loops are scatter-adds and
 branchy per-pixel passes that vectorised NumPy/torch would either densify or pay for in
-per-call overhead (a step is ~100 µs of work; a torch op costs ~5-10 µs to dispatch).
-``bench/streaming.py`` measures it against the naive dense execution.
+per-call overhead (a step is ~100 µs of work; a torch op costs ~5-10 µs to dispatch). With
+``threads=2`` the layers are split in two groups that run as a pipeline on two cores, the first
+group one block of ``block_steps`` ms ahead of the second. ``bench/streaming.py`` measures it
+against the naive dense execution.
 """
 
 from __future__ import annotations
 
+import itertools
+import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 _NEG_BIG = -(1 << 40)
 
@@ -118,6 +128,11 @@ def fit_exp_kernel(kernel: np.ndarray, name: str = "refractory kernel") -> tuple
     return float(a), float(q)
 
 
+PROFILE_KINDS = ("scatter", "tail scatter", "feedback", "update")
+"""Columns of :meth:`StreamingSNN.profile` for each layer (see the module docstring); its last
+row holds the input binning and the readout in its first two columns."""
+
+
 class StreamingSNN:
     """Run an :class:`SNNSpec` step by step with state carried across calls (event-driven).
 
@@ -125,39 +140,71 @@ class StreamingSNN:
     of step ``s`` is the set of active input units ``input_index[step_offsets[s]:
     step_offsets[s+1]]`` (flat indices ``(y * width + x) * 2 + polarity``, duplicates allowed).
     It returns the readout at each step, (steps, outputs) float64 — equal to the batch forward of
-    the same spike tensor at those steps.
+    the same spike tensor at those steps, whatever the threads and however the steps are split
+    into calls.
+
+    Args:
+        spec: the network.
+        dtype: dtype of the state and weights (float32, or float64 for bit-level comparisons).
+        threads: 1, or 2 to run the layers as a two-stage pipeline on two cores (a call then
+            returns once both stages have finished all its steps).
+        block_steps: steps run layer by layer (a layer's weights stay in cache), and by which
+            the first stage of the pipeline runs ahead of the second, ms.
+        input_maps: per layer, keep the synaptic input as a ring of L + 1 maps (True) or scatter
+            the input spikes a second time for the kernel's tail (False); default: maps where
+            the input has more than 2 channels (a spike then reaches many weights).
+        band_kb: a layer runs the block in bands of output rows holding about this much state
+            (a band stays in the core's cache over the block); 0: whole layers.
     """
 
-    def __init__(self, spec: SNNSpec, dtype: type = np.float32) -> None:
-        self.spec = spec
+    def __init__(
+        self,
+        spec: SNNSpec,
+        dtype: type = np.float32,
+        threads: int = 1,
+        block_steps: int = 16,
+        input_maps: tuple[bool, ...] | None = None,
+        band_kb: int = 0,
+    ) -> None:
+        if threads not in (1, 2) or block_steps < 1:
+            raise ValueError(f"threads must be 1 or 2 and block_steps >= 1, got {threads}, "
+                             f"{block_steps}")  # fmt: skip
+        self.spec, self.threads, self.block_steps = spec, threads, block_steps
         shapes = [spec.input_shape, *spec.layer_shapes()]
         n_layers = len(spec.layers)
         geo = np.zeros((n_layers, 8), dtype=np.int64)
         par = np.zeros((n_layers, 8), dtype=np.float64)
+        klen = np.zeros((n_layers, 4), dtype=np.int64)  # L, M, input maps in a ring?, band rows
+        if input_maps is None:
+            input_maps = tuple(shape[0] > 2 for shape in shapes[:-1])
         weights, w_off, st_off, pos_off, z_off = [], [0], [0], [0], [0]
-        lengths = []
         for i, layer in enumerate(spec.layers):
             (cin, hin, win), (cout, hout, wout) = shapes[i], shapes[i + 1]
             kh, kw = layer.weight.shape[2:]
             c, p = fit_alpha_kernel(layer.srm_kernel, f"layer {i + 1} srm kernel")
             a, q = fit_exp_kernel(layer.ref_kernel, f"layer {i + 1} refractory kernel")
             big_l, big_m = len(layer.srm_kernel), len(layer.ref_kernel)
-            lengths.append((big_l, big_m))
+            row_bytes = wout * cout * 3 * np.dtype(dtype).itemsize
+            rows = max(1, band_kb * 1024 // row_bytes) if band_kb else hout
+            klen[i] = big_l, big_m, bool(input_maps[i]), rows
             geo[i] = (cin, hin, win, cout, hout, wout, layer.stride, kh * 1000 + kw)
             # tail weights: A gets -p^L x[t-L], D gets -L p^L x[t-L], R gets -a q^(M-1) s[t-M]
             par[i] = (c, p, -(p**big_l), -big_l * p**big_l, a, q, -a * q ** (big_m - 1),
                       layer.theta)  # fmt: skip
+            # (ky, kx, cin, cout): the Cout weights one input unit sends to one pixel are adjacent
             weights.append(np.ascontiguousarray(layer.weight.transpose(2, 3, 1, 0)).ravel())
             w_off.append(w_off[-1] + weights[-1].size)
             st_off.append(st_off[-1] + cout * hout * wout)
             pos_off.append(pos_off[-1] + hout * wout)
-            z_off.append(z_off[-1] + (big_l + 1) * cout * hout * wout)
-        klen = np.array(lengths, dtype=np.int64)  # (layers, 2): L, M
-        # spike-list ring b holds the spikes entering layer b (b = 0: the input events); it
-        # reaches back M steps of layer b - 1, for the refractory tail.
-        ring_len = [2] + [int(m) + 1 for m in klen[:, 1]]
-        ring_cap = [c_ * h_ * w_ for c_, h_, w_ in shapes]
-        ring_off = np.concatenate([[0], np.cumsum(np.array(ring_len) * np.array(ring_cap))])
+            z_off.append(z_off[-1] + (big_l + 1) * cout * hout * wout * int(klen[i, 2]))
+        # spike-list ring b holds the spikes entering layer b (b = 0: the input events); it reaches
+        # back L steps for layer b's psp tail and M steps for layer b - 1's refractory tail; layer
+        # b - 1 writes up to one block ahead of what layer b reads (two in a pipeline).
+        slack = block_steps * threads
+        reach = [max(klen[b, 0] if b < n_layers else 0, klen[b - 1, 1] if b else 0)
+                 for b in range(n_layers + 1)]  # fmt: skip
+        ring_len = np.array([r + 1 + slack for r in reach], dtype=np.int64)
+        ring_cap = np.array([c_ * h_ * w_ for c_, h_, w_ in shapes], dtype=np.int64)
         # parameters in the state's dtype, so the inner loops never mix precisions
         self._geo, self._par, self._klen = geo, par.astype(dtype), klen
         self._w = np.concatenate(weights).astype(dtype)
@@ -165,54 +212,143 @@ class StreamingSNN:
         self._st_off = np.array(st_off, dtype=np.int64)
         self._pos_off = np.array(pos_off, dtype=np.int64)
         self._z_off = np.array(z_off, dtype=np.int64)
-        self._ring_len = np.array(ring_len, dtype=np.int64)
-        self._ring_cap = np.array(ring_cap, dtype=np.int64)
-        self._ring_off = ring_off.astype(np.int64)
+        self._ring_len, self._ring_cap = ring_len, ring_cap
+        self._ring_off = np.concatenate([[0], np.cumsum(ring_len * ring_cap)]).astype(np.int64)
         self._cnt_off = np.concatenate([[0], np.cumsum(ring_len)]).astype(np.int64)
         c_last, h_last, w_last = shapes[-1]
         fc = np.asarray(spec.fc_weight, dtype=np.float64).reshape(-1, c_last)
         self._fc = fc / (h_last * w_last)  # GASP's mean folded into the readout
         self._out_kernel = np.asarray(spec.out_kernel, dtype=np.float64)
         self._dtype = dtype
+        self._pool: ThreadPoolExecutor | None = None
         self.reset()
 
     @property
     def steps_done(self) -> int:
         """Number of 1 ms steps advanced since the last reset."""
-        return int(self._t[0])
+        return int(self._t)
 
     def reset(self) -> None:
-        """Clear all state (as at the start of a recording)."""
+        """Clear all state (as at the start of a recording) and the profile."""
         self._state = np.zeros((3, int(self._st_off[-1])), dtype=self._dtype)  # A, D, R
         self._z = np.zeros(int(self._z_off[-1]), dtype=self._dtype)
         self._last = np.full(int(self._pos_off[-1]), _NEG_BIG, dtype=np.int64)
-        self._ring = np.zeros(int(self._ring_off[-1]), dtype=np.int32)
+        # only the first ring_cnt entries of a slot are ever read: no need to clear the rings
+        self._ring = np.empty(int(self._ring_off[-1]), dtype=np.int32)
         self._ring_cnt = np.zeros(int(self._cnt_off[-1]), dtype=np.int64)
         self._seen = np.full(int(self._ring_cap[0]), _NEG_BIG, dtype=np.int64)
         self._h = np.zeros((len(self._out_kernel), self._fc.shape[0]), dtype=np.float64)
-        self._t = np.zeros(1, dtype=np.int64)
+        self._t = 0
         self.spike_counts = np.zeros(len(self.spec.layers), dtype=np.int64)
+        # the pipeline's balance learns from every recording, the profile from this one
+        cycles = getattr(self, "_cycles", 0)
+        self._cycles_before = cycles + getattr(self, "_cycles_before", 0)
+        self._cycles = np.zeros((len(self.spec.layers) + 1, len(PROFILE_KINDS)), dtype=np.int64)
+
+    def profile(self) -> np.ndarray:
+        """CPU seconds spent since the last reset, (layers + 1, len(PROFILE_KINDS)): per layer
+        and kind of work; the last row holds the input binning and the readout."""
+        return self._cycles / _cycle_rate()
 
     def run(self, input_index: np.ndarray, step_offsets: np.ndarray) -> np.ndarray:
         """Advance ``len(step_offsets) - 1`` steps; returns the readout, (steps, outputs)."""
         input_index = np.ascontiguousarray(input_index, dtype=np.int64)
         step_offsets = np.ascontiguousarray(step_offsets, dtype=np.int64)
-        out = np.zeros((len(step_offsets) - 1, self._fc.shape[0]), dtype=np.float64)
-        _run_steps(
-            input_index, step_offsets, out, self._t, self._geo, self._par, self._klen,
-            self._w, self._w_off, self._state, self._st_off, self._z, self._z_off, self._last,
+        n = len(step_offsets) - 1
+        n_layers = len(self.spec.layers)
+        out = np.zeros((n, self._fc.shape[0]), dtype=np.float64)
+        # blocks bound the latency of a pipeline and keep a layer in cache for a few steps
+        edges = [*range(0, n, self.block_steps), n]
+        if self.threads == 1 or len(edges) < 3 or n_layers < 2:
+            for s0, s1 in itertools.pairwise(edges):
+                self._block(input_index, step_offsets, out, s0, s1, 0, n_layers)
+        else:
+            self._pipeline(input_index, step_offsets, out, edges, self._split())
+        self._t += n
+        return out
+
+    def _block(self, inp, offs, out, s0: int, s1: int, l0: int, l1: int) -> None:
+        """Steps ``s0..s1`` of this call through layers ``l0..l1`` (and the readout if last)."""
+        _run_block(
+            inp, offs, s0, s1, l0, l1, self._t, out, self._geo, self._par, self._klen, self._w,
+            self._w_off, self._state, self._st_off, self._z, self._z_off, self._last,
             self._pos_off, self._ring, self._ring_off, self._ring_len, self._ring_cap,
             self._ring_cnt, self._cnt_off, self._seen, self._fc, self._out_kernel, self._h,
-            self.spike_counts,
+            self.spike_counts, self._cycles,
         )  # fmt: skip
-        return out
+
+    def _pipeline(self, inp, offs, out, edges: list[int], split: int) -> None:
+        """Layers ``< split`` run block b + 1 on this thread while the rest run block b."""
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="snn-stage2")
+        n_layers = len(self.spec.layers)
+        self._block(inp, offs, out, edges[0], edges[1], 0, split)
+        for b in range(1, len(edges)):
+            later = self._pool.submit(
+                self._block, inp, offs, out, edges[b - 1], edges[b], split, n_layers
+            )
+            try:
+                if b + 1 < len(edges):
+                    self._block(inp, offs, out, edges[b], edges[b + 1], 0, split)
+            finally:
+                later.result()
+
+    def _split(self) -> int:
+        """First layer of the pipeline's second stage: balances the work profiled so far (the
+        neuron counts before any profile exists)."""
+        cycles = (self._cycles + self._cycles_before).astype(np.float64)
+        per_layer = cycles[:-1].sum(axis=1)
+        per_layer[0] += cycles[-1, 0]  # input binning runs with layer 1, the readout with the last
+        per_layer[-1] += cycles[-1, 1]
+        if per_layer.sum() == 0:
+            per_layer = (self._st_off[1:] - self._st_off[:-1]).astype(np.float64)
+        first = np.cumsum(per_layer)[:-1]
+        return int(np.argmin(np.maximum(first, per_layer.sum() - first))) + 1
+
+
+@intrinsic
+def _rdtsc(typingctx):  # pragma: no cover
+    """The CPU's cycle counter (0 where the target has none)."""
+
+    def codegen(context, builder, signature, args):
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(ir.IntType(64), []), "llvm.readcyclecounter"
+        )
+        return builder.call(fn, [])
+
+    return types.int64(), codegen
+
+
+@numba.njit(cache=True)
+def _cycles_now():  # pragma: no cover
+    return _rdtsc()
+
+
+_RATE: list[float] = []
+
+
+def _cycle_rate() -> float:
+    """Cycle counter ticks per second, measured once against ``time.perf_counter``."""
+    if not _RATE:
+        c0, t0 = _cycles_now(), time.perf_counter()
+        time.sleep(0.02)
+        c1, t1 = _cycles_now(), time.perf_counter()
+        _RATE.append((c1 - c0) / (t1 - t0) if c1 > c0 else float("inf"))
+    return _RATE[0]
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _scatter(spikes, g, w, w0, z, zb, last, p0, t):  # pragma: no cover
-    """Add ``W[:, ci, ky, kx]`` to the synaptic input ``z`` of each output pixel a spike reaches."""
-    cin, win, cout, hout, wout, stride, kk = g[0], g[2], g[3], g[4], g[5], g[6], g[7]
+def _scatter(
+    spikes, g, w, w0, za, zd, z0, last, p0, t, tail_a, tail_d, oy_a, oy_b
+):  # pragma: no cover
+    """Add ``W[:, ci, ky, kx]`` to ``za[z0 + pixel * Cout:]`` for each output pixel a spike reaches
+    (``A`` or a map of the ring) and mark the pixel touched at ``t``; with ``tail_a`` != 0, add
+    it scaled by ``tail_a`` to ``za`` and by ``tail_d`` to ``zd`` (``A`` and ``D``) instead: the
+    kernel's truncation, L steps later, when the pixel is still live. Only output rows
+    ``oy_a..oy_b`` are written."""
+    cin, win, cout, wout, stride, kk = g[0], g[2], g[3], g[5], g[6], g[7]
     kh, kw = kk // 1000, kk % 1000
+    tail = tail_a != 0.0
     n_spikes = spikes.shape[0]
     j = 0
     while j < n_spikes:
@@ -226,54 +362,77 @@ def _scatter(spikes, g, w, w0, z, zb, last, p0, t):  # pragma: no cover
         ix = pix - iy * win
         # the output pixels whose window holds (iy, ix): o * stride + k = i with 0 <= k < kh
         # (ranges computed once per pixel: integer division is slow in the inner loops)
-        oy0, oy1 = max(0, (iy - kh + stride) // stride), min(hout - 1, iy // stride)
+        oy0, oy1 = max(oy_a, (iy - kh + stride) // stride), min(oy_b - 1, iy // stride)
         ox0, ox1 = max(0, (ix - kw + stride) // stride), min(wout - 1, ix // stride)
         for oy in range(oy0, oy1 + 1):
             ky = iy - oy * stride
             for ox in range(ox0, ox1 + 1):
                 kx = ix - ox * stride
                 pos = oy * wout + ox
-                last[p0 + pos] = t
+                n0 = z0 + pos * cout
                 # contiguous views: the channel loop vectorises (no index wrap-around checks)
-                row = z[zb + pos * cout : zb + (pos + 1) * cout]
+                ra = za[n0 : n0 + cout]
                 tap = w0 + (ky * kw + kx) * cin * cout
-                for jj in range(j, j_end):
-                    wb = tap + (spikes[jj] - first_unit) * cout
-                    col = w[wb : wb + cout]
-                    for co in range(cout):
-                        row[co] += col[co]
+                if tail:
+                    rd = zd[n0 : n0 + cout]
+                    for jj in range(j, j_end):
+                        wb = tap + (spikes[jj] - first_unit) * cout
+                        col = w[wb : wb + cout]
+                        for co in range(cout):
+                            ra[co] += tail_a * col[co]
+                            rd[co] += tail_d * col[co]
+                else:
+                    last[p0 + pos] = t
+                    for jj in range(j, j_end):
+                        wb = tap + (spikes[jj] - first_unit) * cout
+                        col = w[wb : wb + cout]
+                        for co in range(cout):
+                            ra[co] += col[co]
         j = j_end
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _advance(st, z, mask, n0, n1, zn0, zo0, par):  # pragma: no cover
-    """Neurons ``n0..n1`` (flat): take in x[t] and x[t-L], mark u >= theta, step the recursions.
+def _advance(st, mask, n0, n1, par):  # pragma: no cover
+    """Neurons ``n0..n1`` (flat): mark u >= theta in ``mask``, step the recursions.
 
-    One branch-free loop over contiguous memory, so it vectorises; returns how many fired.
+    One branch-free loop over contiguous memory, so it vectorises (8 lanes: no 64-bit counter).
     """
+    c, p, q, theta = par[0], par[1], par[5], par[7]
+    ra, rd, rr, mk = st[0, n0:n1], st[1, n0:n1], st[2, n0:n1], mask[: n1 - n0]
+    for i in range(n1 - n0):
+        a = ra[i]
+        d = rd[i]
+        mk[i] = c * d + rr[i] >= theta
+        rd[i] = p * (d + a)
+        ra[i] = p * a
+        rr[i] = q * rr[i]
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _advance_ring(st, z, mask, n0, n1, zn0, zo0, par):  # pragma: no cover
+    """:func:`_advance` for a layer whose synaptic input sits in a ring of maps: takes in x[t]
+    (``z[zn0:]``) and the tail of x[t-L] (``z[zo0:]``, cleared for reuse as x[t+1])."""
     c, p, tail_a, tail_d, q, theta = par[0], par[1], par[2], par[3], par[5], par[7]
     ra, rd, rr = st[0, n0:n1], st[1, n0:n1], st[2, n0:n1]
     zn, zo, mk = z[zn0 : zn0 + n1 - n0], z[zo0 : zo0 + n1 - n0], mask[: n1 - n0]
-    fired = 0
     for i in range(n1 - n0):
         a = ra[i] + zn[i] + tail_a * zo[i]
         d = rd[i] + tail_d * zo[i]
-        spike = c * d + rr[i] >= theta
-        mk[i] = spike
-        fired += mk[i]
+        mk[i] = c * d + rr[i] >= theta
         rd[i] = p * (d + a)
         ra[i] = p * a
         rr[i] = q * rr[i]
         zo[i] = 0.0
-    return fired
 
 
 @numba.njit(cache=True, nogil=True)
-def _layer_pass(st, s0, z, z_new, z_old, last, p0, n_pos, cout, t, horizon, par, mask, out):
-    """Advance every pixel touched in the last ``horizon`` steps, in runs of adjacent pixels;
-    write the flat indices of the neurons that fired to ``out``; returns their number."""
+def _layer_pass(
+    st, s0, z, zn, zo, last, p0, pos, n_pos, cout, t, horizon, par, mask, out
+):  # pragma: no cover
+    """Advance every pixel ``pos..n_pos`` touched in the last ``horizon`` steps, in runs of
+    adjacent pixels; write the flat indices of the neurons that fired to ``out``; returns their
+    number."""
     n_spk = 0
-    pos = 0
     while pos < n_pos:
         age = t - last[p0 + pos]
         if age > horizon:
@@ -288,31 +447,44 @@ def _layer_pass(st, s0, z, z_new, z_old, last, p0, n_pos, cout, t, horizon, par,
         while end < n_pos and t - last[p0 + end] < horizon:
             end += 1
         n0, n1 = s0 + pos * cout, s0 + end * cout
-        fired = _advance(st, z, mask, n0, n1, z_new + pos * cout, z_old + pos * cout, par)
-        if fired:  # spikes are sparse: test eight flags at a time
-            words = mask.view(np.uint64)
-            for k in range((n1 - n0 + 7) // 8):
-                if words[k]:
-                    for i in range(8 * k, min(8 * k + 8, n1 - n0)):
-                        if mask[i]:
-                            out[n_spk] = n0 - s0 + i
-                            n_spk += 1
+        if zn < 0:
+            _advance(st, mask, n0, n1, par)
+        else:
+            _advance_ring(st, z, mask, n0, n1, zn + pos * cout, zo + pos * cout, par)
+        words = mask.view(np.uint64)  # spikes are sparse: test eight flags at a time
+        for k in range((n1 - n0 + 7) // 8):
+            if words[k]:
+                for i in range(8 * k, min(8 * k + 8, n1 - n0)):
+                    if mask[i]:
+                        out[n_spk] = n0 - s0 + i
+                        n_spk += 1
         pos = end
     return n_spk
 
 
 @numba.njit(cache=True, nogil=True)
-def _run_steps(  # pragma: no cover
-    inp, offs, out, tbox, geo, par, klen, w, w_off, st, st_off, z, z_off, last, pos_off,
-    ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off, seen, fc, kout, hring, spike_counts,
+def _spike_range(ring, off, length, cap, ring_cnt, cnt_off, t, lo, hi):  # pragma: no cover
+    """The part of step ``t``'s (sorted) spike list in ``[lo, hi)``, as a view."""
+    base = off + (t % length) * cap
+    spikes = ring[base : base + ring_cnt[cnt_off + t % length]]
+    return spikes[np.searchsorted(spikes, lo) : np.searchsorted(spikes, hi)]
+
+
+@numba.njit(cache=True, nogil=True)
+def _run_block(  # pragma: no cover
+    inp, offs, s_begin, s_end, l0, l1, t_base, out, geo, par, klen, w, w_off, st, st_off, z,
+    z_off, last, pos_off, ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off, seen, fc, kout,
+    hring, spike_counts, cycles,
 ):  # fmt: skip
     n_layers = geo.shape[0]
     mask = np.zeros(8 * (ring_cap[1:].max() // 8 + 1), dtype=np.uint8)
     n_out = fc.shape[0]
     lo = kout.shape[0]
-    for s in range(offs.shape[0] - 1):
-        t = tbox[0]
-        # -- input events of this step, deduplicated (the input is binary), into ring 0
+    # layer by layer over the block, so that a layer's state and weights stay in cache
+    for s in range(s_begin, s_end if l0 == 0 else s_begin):
+        # input events of this step, deduplicated (the input is binary), into ring 0
+        t = t_base + s
+        c0 = _rdtsc()
         r0 = ring_off[0] + (t % ring_len[0]) * ring_cap[0]
         m = 0
         for e in range(offs[s], offs[s + 1]):
@@ -321,38 +493,74 @@ def _run_steps(  # pragma: no cover
                 seen[idx] = t
                 ring[r0 + m] = idx
                 m += 1
+        ring[r0 : r0 + m].sort()  # ordered like the lists layers emit, for bands and grouping
         ring_cnt[cnt_off[0] + t % ring_len[0]] = m
-        for li in range(n_layers):
-            g = geo[li]
-            cout, n_pos = g[3], g[4] * g[5]
-            big_l, big_m = klen[li, 0], klen[li, 1]
-            s0, p0 = st_off[li], pos_off[li]
-            n_neurons = n_pos * cout
-            # synaptic input of this step into ring slot t, read back L steps later
-            z_new = z_off[li] + (t % (big_l + 1)) * n_neurons
-            z_old = z_off[li] + ((t + 1) % (big_l + 1)) * n_neurons
-            base = ring_off[li] + (t % ring_len[li]) * ring_cap[li]
-            cnt = ring_cnt[cnt_off[li] + t % ring_len[li]]
-            _scatter(ring[base : base + cnt], g, w, w_off[li], z, z_new, last, p0, t)
-            # refractory feedback of this layer's own spikes, one step and M steps ago
-            for lag in (1, big_m):
-                if t >= lag:
-                    amp = par[li, 4] if lag == 1 else par[li, 6]
-                    slot = (t - lag) % ring_len[li + 1]
-                    base = ring_off[li + 1] + slot * ring_cap[li + 1]
-                    for j in range(ring_cnt[cnt_off[li + 1] + slot]):
-                        n = ring[base + j]
-                        st[2, s0 + n] += amp
-                        last[p0 + n // cout] = t
-            slot = t % ring_len[li + 1]
-            obase = ring_off[li + 1] + slot * ring_cap[li + 1]
-            n_spk = _layer_pass(
-                st, s0, z, z_new, z_old, last, p0, n_pos, cout, t, max(big_l, big_m) + 1,
-                par[li], mask, ring[obase : obase + ring_cap[li + 1]],
-            )  # fmt: skip
-            ring_cnt[cnt_off[li + 1] + slot] = n_spk
-            spike_counts[li] += n_spk
+        cycles[n_layers, 0] += _rdtsc() - c0
+    for li in range(l0, l1):
+        g = geo[li]
+        cin, win, cout, hout, wout, stride, kh = g[0], g[2], g[3], g[4], g[5], g[6], g[7] // 1000
+        big_l, big_m = klen[li, 0], klen[li, 1]
+        s0, p0 = st_off[li], pos_off[li]
+        n_neurons = hout * wout * cout
+        # bands of output rows, each run over the whole block while its state stays in cache
+        for oy_a in range(0, hout, klen[li, 3]):
+            oy_b = min(hout, oy_a + klen[li, 3])
+            in_lo = oy_a * stride * win * cin  # input units whose 3x3 window reaches the band
+            in_hi = min(g[1], (oy_b - 1) * stride + kh) * win * cin
+            own_lo, own_hi = oy_a * wout * cout, oy_b * wout * cout
+            for s in range(s_begin, s_end):
+                t = t_base + s
+                c0 = _rdtsc()
+                spikes = _spike_range(ring, ring_off[li], ring_len[li], ring_cap[li], ring_cnt,
+                                      cnt_off[li], t, in_lo, in_hi)  # fmt: skip
+                if klen[li, 2]:  # synaptic input into map t of the ring, read back L steps later
+                    zn = z_off[li] + (t % (big_l + 1)) * n_neurons
+                    zo = z_off[li] + ((t + 1) % (big_l + 1)) * n_neurons
+                    _scatter(spikes, g, w, w_off[li], z, z, zn, last, p0, t, 0.0, 0.0, oy_a, oy_b)
+                else:
+                    zn = zo = -1
+                    _scatter(spikes, g, w, w_off[li], st[0], st[1], s0, last, p0, t, 0.0, 0.0,
+                             oy_a, oy_b)  # fmt: skip
+                c1 = _rdtsc()
+                cycles[li, 0] += c1 - c0
+                if zn < 0 and t >= big_l:  # the same spikes L steps later, with the tail weights
+                    spikes = _spike_range(ring, ring_off[li], ring_len[li], ring_cap[li],
+                                          ring_cnt, cnt_off[li], t - big_l, in_lo,
+                                          in_hi)  # fmt: skip
+                    _scatter(spikes, g, w, w_off[li], st[0], st[1], s0, last, p0, t, par[li, 2],
+                             par[li, 3], oy_a, oy_b)  # fmt: skip
+                c2 = _rdtsc()
+                cycles[li, 1] += c2 - c1
+                # refractory feedback of this layer's own spikes, one step and M steps ago
+                for lag in (1, big_m):
+                    if t >= lag:
+                        amp = par[li, 4] if lag == 1 else par[li, 6]
+                        own = _spike_range(ring, ring_off[li + 1], ring_len[li + 1],
+                                           ring_cap[li + 1], ring_cnt, cnt_off[li + 1], t - lag,
+                                           own_lo, own_hi)  # fmt: skip
+                        for n in own:
+                            st[2, s0 + n] += amp
+                            if lag == 1:
+                                last[p0 + n // cout] = t
+                c3 = _rdtsc()
+                cycles[li, 2] += c3 - c2
+                # this band's spikes follow those of the bands above in step t's list
+                cnt = cnt_off[li + 1] + t % ring_len[li + 1]
+                if oy_a == 0:
+                    ring_cnt[cnt] = 0
+                obase = ring_off[li + 1] + (t % ring_len[li + 1]) * ring_cap[li + 1]
+                n_spk = _layer_pass(
+                    st, s0, z, zn, zo, last, p0, oy_a * wout, oy_b * wout, cout, t,
+                    max(big_l, big_m) + 1, par[li], mask,
+                    ring[obase + ring_cnt[cnt] : obase + ring_cap[li + 1]],
+                )  # fmt: skip
+                ring_cnt[cnt] += n_spk
+                spike_counts[li] += n_spk
+                cycles[li, 3] += _rdtsc() - c3
+    for s in range(s_begin, s_end if l1 == n_layers else s_begin):
+        t = t_base + s
         # -- readout: global average of the last layer's spikes -> dense -> psp (exact FIR)
+        c0 = _rdtsc()
         hslot = t % lo
         for o in range(n_out):
             hring[hslot, o] = 0.0
@@ -368,4 +576,4 @@ def _run_steps(  # pragma: no cover
             for k in range(min(lo, t + 1)):
                 acc += kout[k] * hring[(t - k) % lo, o]
             out[s, o] = acc
-        tbox[0] = t + 1
+        cycles[n_layers, 1] += _rdtsc() - c0
