@@ -24,3 +24,10 @@ def test_missing_input_file_is_one_line_and_exit_2(tmp_path) -> None:
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error:") and "missing.h5" in lines[0]
+
+
+def test_version_prints_and_exits_0() -> None:
+    from spikegyro import __version__
+
+    res = _run("--version")
+    assert res.returncode == 0 and res.stdout.strip() == __version__
