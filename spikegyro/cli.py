@@ -17,6 +17,7 @@ from spikegyro.demo import DemoConfig, run_demo
 from spikegyro.errors import InputError
 from spikegyro.evaluate import commands as evaluate_commands
 from spikegyro.events import commands as events_commands
+from spikegyro.models import commands as models_commands
 from spikegyro.sim import commands as sim_commands
 from spikegyro.stream import commands as stream_commands
 from spikegyro.train import commands as train_commands
@@ -66,6 +67,7 @@ app.command("evaluate")(evaluate_commands.evaluate)
 app.command("report")(evaluate_commands.report)
 app.command("train")(train_commands.train_command)
 app.command("predict")(stream_commands.predict)
+app.command("export-nir")(models_commands.export_nir_command)
 app.add_typer(baselines_commands.app, name="baseline")
 
 
