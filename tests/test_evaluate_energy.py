@@ -35,10 +35,13 @@ def test_ann6_macs_by_hand_at_240x180():
     # 180x240 -> 89x119 -> 44x59 -> 21x29 -> 10x14 -> 8x12 (3x3, no padding, strides 2,2,2,2,1)
     maps = [(89, 119), (44, 59), (21, 29), (10, 14), (8, 12)]
     channels = [5, 16, 32, 64, 128, 256]
-    expected = sum(
-        h * w * c_out * c_in * 9
-        for (h, w), c_in, c_out in zip(maps, channels[:-1], channels[1:], strict=True)
-    ) + 256 * 3
+    expected = (
+        sum(
+            h * w * c_out * c_in * 9
+            for (h, w), c_in, c_out in zip(maps, channels[:-1], channels[1:], strict=True)
+        )
+        + 256 * 3
+    )
     assert count_macs(ANN6(in_channels=5), torch.zeros(1, 5, 180, 240)) == expected
 
 

@@ -141,5 +141,5 @@ def test_cli_exports_and_refuses_bad_input(checkpoint, tmp_path, monkeypatch, ca
             main()
         assert failed.value.code == 2 and text in capsys.readouterr().err
     assert not (tmp_path / "a.nir").exists()
-    with pytest.raises(InputError, match="junk.nir: not a readable NIR file"):
+    with pytest.raises(InputError, match=r"junk\.nir: not a readable NIR file"):
         read_nir(tmp_path / "junk.nir")
