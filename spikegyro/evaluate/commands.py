@@ -34,7 +34,7 @@ from spikegyro.baselines.mean import mean_predictions, training_mean_omega
 from spikegyro.errors import InputError
 from spikegyro.evaluate import figures, metrics
 from spikegyro.evaluate.bins import SPEED_BIN_EDGES_DEG_S, bin_labels, empty_bins, per_bin_metrics
-from spikegyro.evaluate.compare import METRICS_FORMAT, compare_runs, console_table, table_one
+from spikegyro.evaluate.compare import METRICS_FORMAT, compare_runs, console_summary, table_one
 from spikegyro.evaluate.report import (
     Block,
     FigureRef,
@@ -498,5 +498,5 @@ def report(
     """The paper's Table I over evaluated runs: accuracy, training budget, energy per estimate."""
     console = Console(stderr=True)
     models = compare_runs(list(run_dirs), out)
-    console.print(console_table("Table I", table_one(models)))
+    console.print(console_summary(table_one(models)))
     console.print(f"wrote {out}/report.html, report.md, bins.png, comparison.json")

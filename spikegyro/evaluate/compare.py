@@ -91,6 +91,12 @@ def training_info(payload: dict[str, Any] | None) -> dict[str, Any]:
     }
 
 
+def _network_size(spec: InputSpec) -> tuple[int, int]:
+    """(width, height) in px of the model's input: the sensor scaled as the events are."""
+    width, height = (max(1, round(side * spec.scale)) for side in spec.sensor)
+    return width, height
+
+
 def operations(entry: dict[str, Any], payload: dict[str, Any] | None) -> dict[str, Any] | None:
     """Operations per estimate and per second of a model entry, or None when not countable."""
     spikes = entry.get("spikes") or {}
@@ -101,9 +107,20 @@ def operations(entry: dict[str, Any], payload: dict[str, Any] | None) -> dict[st
     model, _ = load_checkpoint(entry["source"])
     spec = InputSpec.from_dict(payload["input"])
     first = next(m for m in model.modules() if isinstance(m, torch.nn.Conv2d))
-    width, height = (max(1, round(side * spec.scale)) for side in spec.sensor)
+    width, height = _network_size(spec)
     macs = energy.count_macs(model, torch.zeros(1, first.in_channels, height, width))
     return energy.ann_operations(macs, spec.target_ms)
+
+
+def _input_text(entry: dict[str, Any]) -> str:
+    """Input representation and resolution (px) the model saw, e.g. ``voxel grid, 120x90``."""
+    if entry.get("method") == "mean":
+        return "-"
+    if "input" not in entry:  # contrast maximization: raw events
+        return "events"
+    spec = InputSpec.from_dict(entry["input"])
+    width, height = _network_size(spec)
+    return f"{INPUT_NAMES[spec.representation]}, {width}x{height}"
 
 
 def _figure_45nm(ops: dict[str, Any]) -> str:
@@ -145,7 +162,6 @@ def table_one(models: dict[str, dict[str, Any]]) -> Table:
     for name, entry in models.items():
         m, w = entry["metrics"], entry.get("window_metrics") or {}
         info, ops = entry["info"], entry["operations"]
-        representation = (entry.get("input") or {}).get("representation")
         minutes = info["minutes"]
         time = NOT_AVAILABLE if minutes is None else f"{minutes:.1f}"
         if minutes is not None:
@@ -153,7 +169,7 @@ def table_one(models: dict[str, dict[str, Any]]) -> Table:
         rows.append(
             [
                 name,
-                INPUT_NAMES.get(representation, "-" if entry.get("method") == "mean" else "events"),
+                _input_text(entry),
                 NOT_AVAILABLE if info["steps"] is None else fmt(int(info["steps"])),
                 time,
                 fmt(m["median_relative_error"]),
@@ -305,13 +321,25 @@ def compare_runs(
     return models
 
 
-def console_table(title: str, table: Table) -> RichTable:
-    """``table`` for the terminal, with the long per-ms / per-window labels shortened."""
-    out = RichTable(title=escape(title))
-    short_window = f"per {WINDOW_METRIC_MS} ms win."
-    for i, head in enumerate(table.header):
-        head = head.replace(PER_MS_LABEL, "per ms").replace(PER_WINDOW_LABEL, short_window)
+CONSOLE_COLUMNS = {
+    "model": 0,
+    "steps": 2,
+    "med. rel. (ms)": 4,
+    "mean Eucl. (ms)": 5,
+    f"med. rel. ({WINDOW_METRIC_MS} ms)": 6,
+    f"mean Eucl. ({WINDOW_METRIC_MS} ms)": 7,
+    "µJ/est. (45 nm)": 9,
+}
+
+
+def console_summary(table: Table) -> RichTable:
+    """The headline columns of :func:`table_one` for an 80-column terminal (report.md has all)."""
+    out = RichTable(title="Table I (errors in deg/s; paper rows: their data)")
+    for i, head in enumerate(CONSOLE_COLUMNS):
         out.add_column(escape(head), justify="left" if i == 0 else "right")
     for row in table.rows:
-        out.add_row(*(escape(c) for c in row))
+        cells = [row[i] for i in CONSOLE_COLUMNS.values()]
+        if cells[0].startswith(PAPER_LABEL):  # the paper's row for the model above
+            cells[0] = "  paper"
+        out.add_row(*(escape(c) for c in cells))
     return out
