@@ -316,7 +316,7 @@ def test_table_one_holds_the_runs_metrics_paper_rows_budget_and_energy(
     assert rows[paper + "ANN-6 (voxel)"][4:6] == ["0.22", "59.0"]
     assert rows[paper + "Mean"][4:6] == ["1.00", "226.9"]
     # Budget: from the ANN's checkpoint; the SNN fixture's checkpoint records none.
-    assert rows["ANN-6"][1:4] == ["voxel grid", "123", "10.0 (cuda)"]
+    assert rows["ANN-6"][1:4] == ["voxel grid, 64x64", "123", "10.0 (cuda)"]
     assert rows["SNN-6"][2:4] == ["n/a", "n/a"]
     # Energy, by hand. ANN-6 at 64x64: maps 31, 15, 7, 3, 1 px square; one pass per 20 ms.
     channels, sides = [5, 16, 32, 64, 128, 256], [31, 15, 7, 3, 1]
