@@ -116,13 +116,15 @@ def srm_tau_ms(node: Any, name: str) -> float:
 
 
 def to_nir(model: SNN6, height: int, width: int) -> Any:
-    """The NIR graph of ``model`` for (2, ``height``, ``width``) input spikes (see module doc)."""
+    """The NIR graph of ``model`` for (C, ``height``, ``width``) input spikes (see module doc)."""
     nir = require_nir()
-    nodes: dict[str, Any] = {"input": nir.Input(input_type=np.array([2, height, width]))}
+    nodes: dict[str, Any] = {
+        "input": nir.Input(input_type=np.array([model.in_channels, height, width]))
+    }
     edges: list[tuple[str, str]] = []
     previous = "input"
     channels, h, w = model.in_channels, height, width
-    for index, (conv, spec) in enumerate(zip(model.convs, SNN6_LAYERS, strict=True), start=1):
+    for index, conv in enumerate(model.convs, start=1):
         weight = conv.weight.detach().cpu().numpy().astype(np.float32)
         nodes[f"conv{index}"] = nir.Conv2d(
             input_shape=(h, w),
@@ -141,7 +143,7 @@ def to_nir(model: SNN6, height: int, width: int) -> Any:
                 METADATA_KEY: {
                     "tau_r_ms": conv.params.tau_r,
                     "scale_ref": conv.params.scale_ref,
-                    "scale_rho": spec.params.scale_rho,
+                    "scale_rho": conv.params.scale_rho,
                 }
             },
         )
