@@ -41,7 +41,7 @@ from spikegyro.evaluate.report import (
     write_report,
 )
 from spikegyro.events.io import atomic_path
-from spikegyro.models.registry import load_checkpoint, read_checkpoint
+from spikegyro.models.registry import build_model, read_checkpoint
 from spikegyro.train.data import InputSpec
 
 METRICS_FORMAT = "spikegyro-metrics/1"
@@ -104,7 +104,7 @@ def operations(entry: dict[str, Any], payload: dict[str, Any] | None) -> dict[st
         return energy.snn_operations(spikes)
     if payload is None or payload.get("input", {}).get("output") != "window_mean":
         return None
-    model, _ = load_checkpoint(entry["source"])
+    model = build_model(payload["model"], **payload["model_kwargs"])  # MACs need no weights
     spec = InputSpec.from_dict(payload["input"])
     first = next(m for m in model.modules() if isinstance(m, torch.nn.Conv2d))
     width, height = _network_size(spec)
