@@ -25,6 +25,7 @@ _COMMANDS: dict[str, str] = {
     "show": "spikegyro.sim.commands:show",
     "evaluate": "spikegyro.evaluate.commands:evaluate",
     "report": "spikegyro.evaluate.commands:report",
+    "export-nir": "spikegyro.models.commands:export_nir_command",
     "train": "spikegyro.train.commands:train_command",
     "relay-log": "spikegyro.train.relay:relay_log_command",
     "predict": "spikegyro.stream.commands:predict",

@@ -271,3 +271,68 @@ def test_ann_whose_windows_do_not_tile_20_ms_is_flagged(dataset, tmp_path):
     assert (pred[75:] == pred[75]).all() and (pred[50:75] == pred[50]).all()  # held 25 ms
     md = (tmp_path / "out" / "report.md").read_text()
     assert "| x | " in md and "| ANN-6 (voxel) | 0.22 | 59.0 |" in md  # by checkpoint, not name
+
+
+@pytest.fixture(scope="module")
+def evaluated_ann(dataset, tmp_path_factory) -> tuple[Path, dict]:
+    """ANN-6 on voxel grids, its checkpoint recording a 123-step, 10-minute CUDA run."""
+    root = tmp_path_factory.mktemp("ann")
+    spec = {"representation": "voxel", "sensor": list(SENSOR), "scale": 1.0, "window_ms": 100,
+            "output": "window_mean", "num_bins": 5, "target_ms": 20}  # fmt: skip
+    extra = {"step": 123, "elapsed_s": 600.0, "config": {"device": "cuda"}}
+    save_checkpoint(root / "ann6.pt", build_model("ann6", in_channels=5), name="ann6",
+                    model_kwargs={"in_channels": 5}, input_spec=spec, extra=extra)  # fmt: skip
+    result = run_evaluation(dataset, root / "ann6.pt", "test", root / "eval", num_examples=0)
+    return root / "eval", result
+
+
+def _md_rows(md: str) -> dict[str, list[str]]:
+    """Table rows of a report.md by their first cell (first occurrence wins)."""
+    rows: dict[str, list[str]] = {}
+    for line in md.splitlines():
+        if line.startswith("| ") and not line.startswith("| model"):
+            cells = [c.strip() for c in line.strip("|").split(" | ")]
+            rows.setdefault(cells[0], cells)
+    return rows
+
+
+def test_table_one_holds_the_runs_metrics_paper_rows_budget_and_energy(
+    evaluated, evaluated_ann, tmp_path
+):
+    (snn_dir, snn), (ann_dir, ann) = evaluated, evaluated_ann
+    compare_runs([snn_dir, ann_dir], tmp_path)
+    rows = _md_rows((tmp_path / "report.md").read_text())
+    for name, result in (("SNN-6", snn), ("ANN-6", ann)):
+        m, w = result["model"]["metrics"], result["model"]["window_metrics"]
+        row = rows[name]
+        assert row[4:8] == [f"{m['median_relative_error']:.3f}",
+                            f"{m['mean_euclidean_error_deg_s']:.1f}",
+                            f"{w['median_relative_error']:.3f}",
+                            f"{w['mean_euclidean_error_deg_s']:.1f}"]  # fmt: skip
+    mean = snn["mean"]["metrics"]
+    assert rows["Mean"][4] == f"{mean['median_relative_error']:.3f}"
+    paper = "Gehrig et al. 2020 (paper, their data): "
+    assert rows[paper + "SNN-6"][4:6] == ["0.26", "66.3"]
+    assert rows[paper + "ANN-6 (voxel)"][4:6] == ["0.22", "59.0"]
+    assert rows[paper + "Mean"][4:6] == ["1.00", "226.9"]
+    # Budget: from the ANN's checkpoint; the SNN fixture's checkpoint records none.
+    assert rows["ANN-6"][1:4] == ["voxel grid, 64x64", "123", "10.0 (cuda)"]
+    assert rows["SNN-6"][2:4] == ["n/a", "n/a"]
+    # Energy, by hand. ANN-6 at 64x64: maps 31, 15, 7, 3, 1 px square; one pass per 20 ms.
+    channels, sides = [5, 16, 32, 64, 128, 256], [31, 15, 7, 3, 1]
+    macs = sum(s * s * c_out * c_in * 9 for s, c_in, c_out in
+               zip(sides, channels[:-1], channels[1:], strict=True)) + 256 * 3  # fmt: skip
+    saved = json.loads((tmp_path / "comparison.json").read_text())
+    assert saved["ANN-6"]["operations"]["per_estimate"] == macs
+    assert saved["ANN-6"]["energy"]["mac_fp32_45nm_mw"] == pytest.approx(macs * 50 * 4.6e-9)
+    assert rows["ANN-6"][8:10] == [f"{macs:.3g} MACs", f"{macs * 4.6e-6:.3g}"]
+    synops_per_ms = snn["model"]["spikes"]["synops_per_s"] * 1e-3
+    assert saved["SNN-6"]["energy"]["add_fp32_45nm_uj_per_estimate"] == pytest.approx(
+        synops_per_ms * 0.9e-6
+    )
+    assert saved["SNN-6"]["energy"]["synop_loihi_mw"] == pytest.approx(
+        snn["model"]["spikes"]["synops_per_s"] * 23.6e-9
+    )
+    assert saved["Mean"]["operations"] is None
+    page = (tmp_path / "report.html").read_text()
+    assert "Horowitz" in page and "Davies" in page

@@ -5,6 +5,7 @@ metrics.json, predictions.npz, figures and a report; ``compare_runs`` puts sever
 by side. The pure metric functions live in :mod:`.metrics` and :mod:`.bins`.
 """
 
-from spikegyro.evaluate.commands import compare_runs, run_evaluation
+from spikegyro.evaluate.commands import run_evaluation
+from spikegyro.evaluate.compare import compare_runs
 
 __all__ = ["compare_runs", "run_evaluation"]

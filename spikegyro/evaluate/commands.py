@@ -11,7 +11,7 @@ and the mean predictor over a split's fixed windows, and writes into ``OUT``:
 - ``bins.png`` (paper Fig. 4), ``axes.png`` (Fig. 5), ``window_<i>.png`` (Fig. 3);
 - ``report.html`` (self-contained) and ``report.md``.
 
-``report`` reads several such folders and compares them in one table and one figure.
+``report`` (:mod:`spikegyro.evaluate.compare`) reads several such folders into the paper's Table I.
 """
 
 from __future__ import annotations
@@ -34,17 +34,14 @@ from spikegyro.baselines.mean import mean_predictions, training_mean_omega
 from spikegyro.errors import InputError
 from spikegyro.evaluate import figures, metrics
 from spikegyro.evaluate.bins import SPEED_BIN_EDGES_DEG_S, bin_labels, empty_bins, per_bin_metrics
+from spikegyro.evaluate.compare import METRICS_FORMAT, compare_runs, console_summary, table_one
 from spikegyro.evaluate.report import (
-    PER_MS_LABEL,
-    PER_WINDOW_LABEL,
     Block,
     FigureRef,
-    Table,
     axis_table,
     bin_table,
     fmt,
     overall_table,
-    paper_row,
     write_report,
 )
 from spikegyro.evaluate.spikes import spike_statistics, spike_table
@@ -55,7 +52,6 @@ from spikegyro.models.registry import CHECKPOINT_FORMAT, PRETRAINED_SNN6, load_c
 from spikegyro.train.data import InputSpec, Window, fixed_windows
 from spikegyro.train.infer import predict_windows, spec_of
 
-METRICS_FORMAT = "spikegyro-metrics/1"
 MODEL_CHOICES = ("cmax",)
 DEFAULT_EXAMPLES = 3
 
@@ -438,18 +434,6 @@ def _evaluation_report(out_dir: Path, result: dict[str, Any], examples: list[Fig
     write_report(out_dir, f"spikegyro evaluation: {name}", blocks)
 
 
-def console_table(title: str, table: Table) -> RichTable:
-    """``table`` for the terminal, with the long per-ms / per-window labels shortened."""
-    out = RichTable(title=escape(title))
-    short_window = f"per {metrics.WINDOW_METRIC_MS} ms win."
-    for i, head in enumerate(table.header):
-        head = head.replace(PER_MS_LABEL, "per ms").replace(PER_WINDOW_LABEL, short_window)
-        out.add_column(escape(head), justify="left" if i == 0 else "right")
-    for row in table.rows:
-        out.add_row(*(escape(c) for c in row))
-    return out
-
-
 def _print_summary(console: Console, result: dict[str, Any], out_dir: Path) -> None:
     # The full table (report.md/html) has 12 columns; a terminal gets the headline ones.
     table = RichTable(title=escape(f"{result['data']['dir']} / {result['data']['split']}"))
@@ -507,80 +491,12 @@ def evaluate(
     )
 
 
-def load_run(run_dir: str | os.PathLike) -> dict[str, Any]:
-    """Read ``run_dir/metrics.json`` written by ``evaluate``."""
-    path = Path(run_dir) / "metrics.json"
-    if not path.exists():
-        raise InputError(f"{run_dir}: no metrics.json; run `spikegyro evaluate --out {run_dir}`.")
-    data = json.loads(path.read_text(encoding="utf-8"))
-    if data.get("format") != METRICS_FORMAT:
-        raise InputError(f"{path}: not a spikegyro metrics file (format {data.get('format')}).")
-    return data
-
-
-def compare_runs(
-    run_dirs: list[str | os.PathLike], out_dir: str | os.PathLike
-) -> dict[str, dict[str, Any]]:
-    """One comparison table and one per-bin figure over several ``evaluate`` outputs.
-
-    The mean predictor is taken from the first run. Returns {model name: its results}.
-    """
-    if not run_dirs:
-        raise InputError("report: give at least one RUN_DIR written by `spikegyro evaluate`.")
-    out_dir = Path(out_dir)
-    runs = [load_run(r) for r in run_dirs]
-    edges = runs[0]["bins"]["edges_deg_s"]
-    models: dict[str, dict[str, Any]] = {}
-    notes = []
-    for run_dir, run in zip(run_dirs, runs, strict=True):
-        if run["bins"]["edges_deg_s"] != edges:
-            raise InputError(f"{run_dir}: its speed bins differ from {run_dirs[0]}'s.")
-        key = run["model"]["name"]
-        if key in models:
-            key = f"{key} [{Path(run_dir).name}]"
-        models[key] = run["model"]
-        notes.append(
-            f"{key}: {run_dir} ({run['data']['dir']} / {run['data']['split']}, "
-            f"{run['data']['windows']:,} windows)"
-        )
-    models["Mean"] = runs[0]["mean"]
-    if len({(r["data"]["dir"], r["data"]["split"], r["data"]["windows"]) for r in runs}) > 1:
-        notes.append("Warning: the runs were scored on different data; compare with care.")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    per_bin = {k: m["per_bin"] for k, m in models.items()}
-    figures.save_figure(figures.median_relative_error_per_bin(per_bin), out_dir / "bins.png")
-    blocks: list[Block] = [
-        *notes,
-        overall_table(
-            models,
-            "Overall errors; paper columns: Gehrig et al. 2020, Table I, on their "
-            "own data (Sun360 panoramas through ESIM), not ours",
-        ),
-        FigureRef("Median relative error per true-speed bin (paper Fig. 4).", "bins.png"),
-        bin_table(per_bin),
-    ]
-    write_report(out_dir, "spikegyro comparison", blocks)
-    _write_json(
-        out_dir / "comparison.json",
-        {
-            k: {
-                "metrics": m["metrics"],
-                "window_metrics": m.get("window_metrics"),
-                "paper_row": paper_row(m),
-                "per_bin": m["per_bin"],
-            }
-            for k, m in models.items()
-        },
-    )
-    return models
-
-
 def report(
     run_dirs: list[Path] = typer.Argument(..., help="Output folders of `spikegyro evaluate`."),
     out: Path = typer.Option(..., "--out", help="Output folder for the comparison."),
 ) -> None:
-    """Compare evaluated runs (and the mean predictor) beside the paper's published numbers."""
+    """The paper's Table I over evaluated runs: accuracy, training budget, energy per estimate."""
     console = Console(stderr=True)
     models = compare_runs(list(run_dirs), out)
-    console.print(console_table("comparison", overall_table(models, "")))
+    console.print(console_summary(table_one(models)))
     console.print(f"wrote {out}/report.html, report.md, bins.png, comparison.json")
