@@ -166,7 +166,7 @@ def _stream_recording(config: DemoConfig, out: Path, console: Console) -> dict[s
     )
     recording = simulate_sequence(sim, 0, config.seed + 1, split="test")
     path = write_recording(out / "recording.h5", recording)
-    engine, payload = load_streaming_model(PRETRAINED_SNN6)
+    engine, payload = load_streaming_model(PRETRAINED_SNN6, threads=config.workers)
     result = predict_stream(
         path, engine, payload.get("input", {}), out / "recording-pred.csv", gyro_path=path
     )
