@@ -26,23 +26,18 @@ import numpy as np
 import torch
 import typer
 from rich.console import Console
-from rich.markup import escape
 from rich.progress import Progress
-from rich.table import Table as RichTable
 
 from spikegyro.baselines.mean import mean_predictions, training_mean_omega
 from spikegyro.errors import InputError
 from spikegyro.evaluate import figures, metrics
 from spikegyro.evaluate.bins import SPEED_BIN_EDGES_DEG_S, bin_labels, empty_bins, per_bin_metrics
+from spikegyro.evaluate.console import console_table, print_summary, write_json
 from spikegyro.evaluate.report import (
-    PER_MS_LABEL,
-    PER_WINDOW_LABEL,
     Block,
     FigureRef,
-    Table,
     axis_table,
     bin_table,
-    fmt,
     overall_table,
     paper_row,
     write_report,
@@ -185,11 +180,6 @@ def _write_predictions(
             t_start_us=np.array([w.t_start_us for w in windows], dtype=np.int64),
             num_events=np.array([len(w.events) for w in windows], dtype=np.int64),
         )
-
-
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n", encoding="utf-8")
 
 
 def _predict(
@@ -387,10 +377,12 @@ def run_evaluation(
 
     out_dir.mkdir(parents=True, exist_ok=True)
     _write_predictions(out_dir / "predictions.npz", windows, pred, gt, mean_omega)
-    _write_json(out_dir / "metrics.json", result)
+    write_json(out_dir / "metrics.json", result)
     example_refs = _example_figures(out_dir, windows, pred, picks, name)
     _evaluation_report(out_dir, result, example_refs)
-    _print_summary(console, result, out_dir)
+    title = f"{result['data']['dir']} / {result['data']['split']}"
+    print_summary(console, title, [result["model"], result["mean"]], result["warnings"])
+    console.print(f"wrote {out_dir}/metrics.json, predictions.npz, report.html, report.md")
     return result
 
 
@@ -436,39 +428,6 @@ def _evaluation_report(out_dir: Path, result: dict[str, Any], examples: list[Fig
     if examples:
         blocks += ["## Example windows", *examples]
     write_report(out_dir, f"spikegyro evaluation: {name}", blocks)
-
-
-def console_table(title: str, table: Table) -> RichTable:
-    """``table`` for the terminal, with the long per-ms / per-window labels shortened."""
-    out = RichTable(title=escape(title))
-    short_window = f"per {metrics.WINDOW_METRIC_MS} ms win."
-    for i, head in enumerate(table.header):
-        head = head.replace(PER_MS_LABEL, "per ms").replace(PER_WINDOW_LABEL, short_window)
-        out.add_column(escape(head), justify="left" if i == 0 else "right")
-    for row in table.rows:
-        out.add_row(*(escape(c) for c in row))
-    return out
-
-
-def _print_summary(console: Console, result: dict[str, Any], out_dir: Path) -> None:
-    # The full table (report.md/html) has 12 columns; a terminal gets the headline ones.
-    table = RichTable(title=escape(f"{result['data']['dir']} / {result['data']['split']}"))
-    for col in ("model", "median rel. err.", "mean Eucl. err.", "RMSE", "20 ms: median rel."):
-        table.add_column(col, justify="left" if col == "model" else "right")
-    for entry in (result["model"], result["mean"]):
-        m, w = entry["metrics"], entry.get("window_metrics") or {}
-        table.add_row(
-            escape(entry["name"]),
-            fmt(m["median_relative_error"]),
-            f"{fmt(m['mean_euclidean_error_deg_s'], 1)} deg/s",
-            f"{fmt(m['rmse_deg_s'], 1)} deg/s",
-            fmt(w.get("median_relative_error")),
-        )
-    console.print(table)
-    console.print('per ms over steps >= 50; mean Eucl. err. is the paper\'s "RMSE"')
-    for w in result["warnings"]:
-        console.print(f"[yellow]warning:[/] {escape(w)}")
-    console.print(f"wrote {out_dir}/metrics.json, predictions.npz, report.html, report.md")
 
 
 def evaluate(
@@ -560,7 +519,7 @@ def compare_runs(
         bin_table(per_bin),
     ]
     write_report(out_dir, "spikegyro comparison", blocks)
-    _write_json(
+    write_json(
         out_dir / "comparison.json",
         {
             k: {
