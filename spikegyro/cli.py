@@ -16,6 +16,7 @@ from spikegyro.baselines import commands as baselines_commands
 from spikegyro.demo import DemoConfig, run_demo
 from spikegyro.errors import InputError
 from spikegyro.evaluate import commands as evaluate_commands
+from spikegyro.evaluate import real as evaluate_real
 from spikegyro.events import commands as events_commands
 from spikegyro.sim import commands as sim_commands
 from spikegyro.stream import commands as stream_commands
@@ -64,6 +65,7 @@ app.command("export-official")(sim_commands.export_official_command)
 app.command("show")(sim_commands.show)
 app.command("evaluate")(evaluate_commands.evaluate)
 app.command("report")(evaluate_commands.report)
+app.command("evaluate-real")(evaluate_real.evaluate_real)
 app.command("train")(train_commands.train_command)
 app.command("predict")(stream_commands.predict)
 app.add_typer(baselines_commands.app, name="baseline")

@@ -38,6 +38,7 @@ from spikegyro.evaluate.report import (
     FigureRef,
     axis_table,
     bin_table,
+    display_name,
     overall_table,
     paper_row,
     write_report,
@@ -53,20 +54,6 @@ from spikegyro.train.infer import predict_windows, spec_of
 METRICS_FORMAT = "spikegyro-metrics/1"
 MODEL_CHOICES = ("cmax",)
 DEFAULT_EXAMPLES = 3
-
-
-def display_name(payload: dict[str, Any]) -> str:
-    """The model's name in tables and legends, from its checkpoint (e.g. ``ResNet-50 (V)``)."""
-    model = payload.get("model", "model")
-    rep = payload.get("input", {}).get("representation", "")
-    tag = {"voxel": "V", "frames": "A", "spikes": "E"}.get(rep, rep)
-    if model == "snn6":
-        return "SNN-6" if rep == "spikes" else f"SNN-6 ({tag})"
-    if model == "ann6":
-        return "ANN-6" if rep == "voxel" else f"ANN-6 ({tag})"
-    if model == "resnet50":
-        return f"ResNet-50 ({tag})"
-    return model
 
 
 def _is_official(path: Path) -> bool:

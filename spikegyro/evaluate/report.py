@@ -48,6 +48,20 @@ _REPRESENTATION_TAGS = {
 _DEFAULT_REPRESENTATION = {"snn6": "spikes", "ann6": "voxel"}
 
 
+def display_name(payload: dict[str, Any]) -> str:
+    """The model's name in tables and legends, from its checkpoint (e.g. ``ResNet-50 (V)``)."""
+    model = payload.get("model", "model")
+    rep = payload.get("input", {}).get("representation", "")
+    tag = {"voxel": "V", "frames": "A", "spikes": "E"}.get(rep, rep)
+    if model == "snn6":
+        return "SNN-6" if rep == "spikes" else f"SNN-6 ({tag})"
+    if model == "ann6":
+        return "ANN-6" if rep == "voxel" else f"ANN-6 ({tag})"
+    if model == "resnet50":
+        return f"ResNet-50 ({tag})"
+    return model
+
+
 def paper_row(result: Mapping[str, Any]) -> str | None:
     """The row of the paper's Table I that a model's results (a ``metrics.json`` model entry)
     compare with, or None.
