@@ -2,10 +2,14 @@
 
 An estimator that sees only events (contrast maximization over short windows) gives omega on the
 events' clock; the gyro gives omega on its own. For each candidate offset ``d`` (µs, added to the
-gyro's timestamps, see :mod:`spikegyro.events.imu`) the gyro's mean over each estimate's window,
-shifted by ``d``, is compared with the estimates by the normalised cross-correlation of the
-three axes together (each axis's mean removed, so a gyro bias does not matter, and normalised, so
-a scale error such as a wrong focal length does not either):
+gyro's timestamps, see :mod:`spikegyro.events.imu`) the gyro's mean over each estimate's sample
+times, shifted by ``d``, is compared with the estimates. The sample times are best the times of
+events spread evenly through the estimate's window (:func:`event_sample_times`): every event
+weighs the same in the contrast, so an estimate is the event-weighted mean of omega, and events
+crowd where the motion is fast; a plain time average would bias the offset by a millisecond or
+more. The comparison is the normalised cross-correlation of the three axes together (each
+axis's mean removed, so a gyro bias does not matter, and normalised, so a scale error such
+as a wrong focal length does not either):
 
     c(d) = sum_i sum_k (e_ik - mean e_i) (g_ik(d) - mean g_i(d))
            / sqrt(sum_ik (e_ik - mean e_i)^2 * sum_ik (g_ik(d) - mean g_i(d))^2)
@@ -22,7 +26,6 @@ from typing import Any
 import numpy as np
 
 from spikegyro.events.core import GyroTrace
-from spikegyro.events.imu import window_means
 
 MIN_ESTIMATES = 8
 """Fewer estimates than this (inside the gyro's span at every offset) give no fit."""
@@ -43,9 +46,22 @@ def correlation(estimates: np.ndarray, reference: np.ndarray) -> float:
     return float((e * g).sum() / denom) if denom > 0 else float("nan")
 
 
+def event_sample_times(
+    event_t_us: np.ndarray, starts_us: np.ndarray, ends_us: np.ndarray, count: int = 32
+) -> np.ndarray:
+    """``count`` event times spread evenly (by index) through each window ``[start, end)``, µs,
+    shape (K, count); rows of windows without events are NaN."""
+    lo = np.searchsorted(event_t_us, starts_us, side="left")
+    hi = np.searchsorted(event_t_us, ends_us, side="left")
+    frac = (np.arange(count) + 0.5) / count
+    index = (lo[:, None] + frac[None, :] * (hi - lo)[:, None]).astype(np.int64)
+    times = event_t_us[np.clip(index, 0, max(len(event_t_us) - 1, 0))].astype(np.float64)
+    times[hi <= lo] = np.nan
+    return times
+
+
 def fit_time_offset(
-    starts_us: np.ndarray,
-    ends_us: np.ndarray,
+    sample_times_us: np.ndarray,
     estimates: np.ndarray,
     gyro: GyroTrace,
     max_offset_us: float = 30_000.0,
@@ -54,7 +70,8 @@ def fit_time_offset(
     """The gyro-to-events clock offset that best explains ``estimates``.
 
     Args:
-        starts_us, ends_us: (K,) the windows (µs, events' clock) each estimate averages over.
+        sample_times_us: (K, M) times (µs, events' clock) whose mean omega each estimate
+            measures (:func:`event_sample_times`); rows holding NaN are left out.
         estimates: (K, 3) angular velocity estimates from events, rad/s.
         gyro: the gyro trace (camera frame, its own clock).
         max_offset_us: candidate offsets span ``[-max, +max]`` µs.
@@ -66,13 +83,14 @@ def fit_time_offset(
         range), ``n_estimates``, the curve ``offsets_us`` / ``correlations`` and ``reason`` when
         no fit was possible.
     """
-    starts = np.asarray(starts_us, dtype=np.float64)
-    ends = np.asarray(ends_us, dtype=np.float64)
+    times = np.asarray(sample_times_us, dtype=np.float64).reshape(len(estimates), -1)
     grid = offset_grid(max_offset_us, step_us)
     result: dict[str, Any] = {"max_offset_us": float(max_offset_us), "step_us": float(step_us)}
-    keep = np.isfinite(estimates).all(axis=1)
+    keep = np.isfinite(estimates).all(axis=1) & np.isfinite(times).all(axis=1)
     if len(gyro) >= 2:
-        keep &= (starts - grid.max() >= gyro.t[0]) & (ends - grid.min() <= gyro.t[-1])
+        with np.errstate(invalid="ignore"):
+            first, last = times.min(axis=1), times.max(axis=1)
+            keep &= (first - grid.max() >= gyro.t[0]) & (last - grid.min() <= gyro.t[-1])
     else:
         keep[:] = False
     result["n_estimates"] = int(keep.sum())
@@ -83,8 +101,12 @@ def fit_time_offset(
             "reason": f"{int(keep.sum())} estimates inside the gyro's span at every offset "
             f"(need {MIN_ESTIMATES}); give a longer recording or a smaller offset range.",
         }
-    est, a, b = estimates[keep], starts[keep], ends[keep]
-    curve = np.array([correlation(est, window_means(gyro, a - d, b - d)) for d in grid])
+    est, sample = estimates[keep], times[keep]
+
+    def reference(d: float) -> np.ndarray:
+        return gyro.interpolate((sample - d).ravel()).reshape(*sample.shape, 3).mean(axis=1)
+
+    curve = np.array([correlation(est, reference(d)) for d in grid])
     if not np.isfinite(curve).any():
         return {
             **result,
