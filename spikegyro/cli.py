@@ -45,6 +45,7 @@ def _root(
 
 
 app.command("info")(events_commands.info)
+app.command("compare-stats")(events_commands.compare_stats)
 
 
 @app.command("demo")
