@@ -121,6 +121,7 @@ def test_compare_stats_command(tmp_path, monkeypatch, capsys):
     # 2,000 hot events among about 2,600 (the hot pixel fires 40 kHz for 50 ms)
     assert cam["windows"] == 1 and cam["top_share"]["0.01"]["median"] > 0.75
     assert (out / "sim_vs_real.png").stat().st_size > 10_000
+    capsys.readouterr()
     # bad input: one line, exit 2
     monkeypatch.setattr(sys, "argv", [*argv[:3], "--sim", str(tmp_path / "none"), "--out", "x"])
     with pytest.raises(SystemExit) as info:
