@@ -73,7 +73,7 @@ from spikegyro.events.imu import (
     shift_gyro,
     window_means,
 )
-from spikegyro.events.io import atomic_path, read_gyro, read_recording
+from spikegyro.events.io import atomic_path, read_gyro, read_recording, recording_name
 from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_streaming_model
 from spikegyro.stream.predict import WARMUP_STEPS, StreamPredictor, event_mapper, model_camera
 
@@ -605,7 +605,7 @@ def _write_figures(
                 )
             },
             shade_until_ms=warmup,
-            title=Path(result["data"]["recording"]).name,
+            title=recording_name(Path(result["data"]["recording"])),
         ),
         out_dir / "traces.png",
     )

@@ -14,7 +14,7 @@ from rich.table import Table
 
 from spikegyro.errors import InputError
 from spikegyro.events import stats
-from spikegyro.events.io import atomic_path, detect_format, read_recording
+from spikegyro.events.io import atomic_path, detect_format, read_recording, recording_name
 
 
 def info(
@@ -54,14 +54,6 @@ def info(
 
 
 STATS_FORMAT = "spikegyro-event-stats/1"
-
-
-def recording_name(path: Path) -> str:
-    """A short name for a recording: its folder for ``events.txt`` or an ECD folder, else the
-    file's stem."""
-    if path.is_dir() or path.name == "events.txt":
-        return (path if path.is_dir() else path.parent).name
-    return path.stem
 
 
 def _windows_of(path: Path, window_us: int, sensor: tuple[int, int] | None) -> list[dict]:
