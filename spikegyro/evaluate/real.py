@@ -82,6 +82,8 @@ BIN_US = 1000
 DEFAULT_WINDOW_MS = 20.0
 SNN_CHUNK_MS = 20
 _REPORT_WINDOW_ROWS = 40
+MIN_OFFSET_CORRELATION = 0.5
+"""A best fit correlating less than this is reported as undetermined."""
 
 
 @dataclass(frozen=True)
@@ -412,6 +414,12 @@ def run_real_evaluation(
     )
     if fit["offset_us"] is None:
         warnings.append(f"no clock offset could be fitted: {fit['reason']}")
+    elif fit["correlation"] < MIN_OFFSET_CORRELATION:
+        warnings.append(
+            f"the estimates and the gyro hardly correlate at any offset (at best "
+            f"{fit['correlation']:.2f}): the motion does not vary enough for CMax over "
+            f"{offset_cfg.window_ms:g} ms to pin the clock offset down; do not apply it."
+        )
     elif fit.get("at_edge"):
         warnings.append(
             f"the best clock offset lies at the edge of ±{offset_cfg.max_offset_ms:g} ms; the "
