@@ -28,7 +28,7 @@ reported; it is applied only with ``--gyro-offset auto`` (a number applies that 
 
 Outputs in ``OUT``: ``metrics.json``, ``predictions.csv`` (per ms), ``windows.csv``,
 ``traces.png``, ``offset.png``, ``bins.png``, ``axes_<model>.png``, ``report.html``,
-``report.md``.
+``report.md`` (written by :mod:`spikegyro.evaluate.real_report`).
 """
 
 from __future__ import annotations
@@ -47,20 +47,13 @@ from rich.progress import Progress
 from spikegyro.baselines import cmax
 from spikegyro.baselines.mean import training_mean_omega
 from spikegyro.errors import InputError
-from spikegyro.evaluate import figures, metrics
+from spikegyro.evaluate import metrics
 from spikegyro.evaluate.bins import SPEED_BIN_EDGES_DEG_S, bin_labels, empty_bins, per_bin_metrics
 from spikegyro.evaluate.console import print_summary, write_json
 from spikegyro.evaluate.offset import event_sample_times, fit_time_offset
+from spikegyro.evaluate.real_report import write_figures, write_real_report, write_tables
 from spikegyro.evaluate.report import (
-    Block,
-    FigureRef,
-    Table,
-    axis_table,
-    bin_table,
     display_name,
-    metric_cells,
-    metric_header,
-    write_report,
 )
 from spikegyro.events.calib import Calibration, PinholeCamera, resolve_calibration
 from spikegyro.events.core import EventArray, GyroTrace
@@ -73,7 +66,7 @@ from spikegyro.events.imu import (
     shift_gyro,
     window_means,
 )
-from spikegyro.events.io import atomic_path, read_gyro, read_recording, recording_name
+from spikegyro.events.io import read_gyro, read_recording
 from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_streaming_model
 from spikegyro.stream.predict import WARMUP_STEPS, StreamPredictor, event_mapper, model_camera
 
@@ -81,7 +74,6 @@ REAL_METRICS_FORMAT = "spikegyro-real-metrics/1"
 BIN_US = 1000
 DEFAULT_WINDOW_MS = 20.0
 SNN_CHUNK_MS = 20
-_REPORT_WINDOW_ROWS = 40
 MIN_OFFSET_CORRELATION = 0.5
 """A best fit correlating less than this is reported as undetermined."""
 
@@ -526,11 +518,11 @@ def run_real_evaluation(
         "warnings": warnings,
     }
     out_dir.mkdir(parents=True, exist_ok=True)
-    _write_tables(out_dir, ends, scored, gt, per_ms, w_starts, w_ends, num_events, win_ok,
+    write_tables(out_dir, ends, scored, gt, per_ms, w_starts, w_ends, num_events, win_ok,
                   w_gt, window_pred)  # fmt: skip
     write_json(out_dir / "metrics.json", result)
-    _write_figures(out_dir, result, t0, ends, per_ms, trace, w_starts, w_ends, cmax_win)
-    _write_real_report(out_dir, result)
+    write_figures(out_dir, result, t0, ends, per_ms, trace, w_starts, w_ends, cmax_win)
+    write_real_report(out_dir, result)
     print_summary(
         console,
         f"{recording}: {int(scored.sum())} steps, {int(win_ok.sum())} windows",
@@ -548,211 +540,6 @@ def run_real_evaluation(
         )
     console.print(f"wrote {out_dir}/metrics.json, predictions.csv, windows.csv, report.html")
     return result
-
-
-def _write_tables(
-    out_dir: Path,
-    ends: np.ndarray,
-    scored: np.ndarray,
-    gt: np.ndarray,
-    per_ms: dict[str, tuple[str, np.ndarray]],
-    w_starts: np.ndarray,
-    w_ends: np.ndarray,
-    num_events: np.ndarray,
-    win_ok: np.ndarray,
-    w_gt: np.ndarray,
-    window_pred: dict[str, np.ndarray],
-) -> None:
-    """predictions.csv (per ms) and windows.csv (per window); angular velocity in rad/s."""
-    axes = ("wx", "wy", "wz")
-    keys = {"snn": "snn", "cmax": "cmax", "mean": "mean"}
-    head = ["t", "scored"] + [f"gyro_{a}" for a in axes]
-    cols = [ends / 1e6, scored.astype(int), gt]
-    for method, series in per_ms.values():
-        head += [f"{keys[method]}_{a}" for a in axes]
-        cols.append(series)
-    with atomic_path(out_dir / "predictions.csv") as tmp:
-        np.savetxt(tmp, np.column_stack(cols), delimiter=",", header=",".join(head),
-                   comments="", fmt="%.9g")  # fmt: skip
-    tags = {name: ("cmax_window" if name == "CMax (window)" else per_ms[name][0])
-            for name in window_pred}  # fmt: skip
-    head = ["start", "end", "events", "scored"] + [f"gyro_{a}" for a in axes]
-    cols = [w_starts / 1e6, w_ends / 1e6, num_events, win_ok.astype(int), w_gt]
-    for name, pred in window_pred.items():
-        head += [f"{tags[name]}_{a}" for a in axes]
-        cols.append(pred)
-    with atomic_path(out_dir / "windows.csv") as tmp:
-        np.savetxt(tmp, np.column_stack(cols), delimiter=",", header=",".join(head),
-                   comments="", fmt="%.9g")  # fmt: skip
-
-
-def _write_figures(
-    out_dir: Path,
-    result: dict[str, Any],
-    t0: int,
-    ends: np.ndarray,
-    per_ms: dict[str, tuple[str, np.ndarray]],
-    trace: GyroTrace,
-    w_starts: np.ndarray,
-    w_ends: np.ndarray,
-    cmax_win: np.ndarray,
-) -> None:
-    models = result["models"]
-    warmup = result["data"]["warmup_ms"]
-    inside = (trace.t >= t0 - 5 * BIN_US) & (trace.t <= ends[-1] + 5 * BIN_US)
-    figures.save_figure(
-        figures.omega_traces(
-            (ends - t0) / 1000,
-            {name: np.degrees(series) for name, (_, series) in per_ms.items()},
-            ((trace.t[inside] - t0) / 1000, np.degrees(trace.omega[inside])),
-            {
-                "CMax (window)": (
-                    (w_starts - t0) / 1000,
-                    (w_ends - t0) / 1000,
-                    np.degrees(cmax_win),
-                )
-            },
-            shade_until_ms=warmup,
-            title=recording_name(Path(result["data"]["recording"])),
-        ),
-        out_dir / "traces.png",
-    )
-    fit = result["gyro"]["offset_fit"]
-    if fit["offset_us"] is not None:
-        figures.save_figure(
-            figures.offset_curve(
-                np.array(fit["offsets_us"]) / 1000,
-                np.array([np.nan if c is None else c for c in fit["correlations"]]),
-                fit["offset_us"] / 1000,
-                result["gyro"]["offset_applied_us"] / 1000,
-            ),
-            out_dir / "offset.png",
-        )
-    per_bin = {name: m["per_bin"] for name, m in models.items() if m["metrics"] is not None}
-    figures.save_figure(
-        figures.median_relative_error_per_bin(per_bin, "Real recording: per speed bin"),
-        out_dir / "bins.png",
-    )
-    for name, (method, _) in per_ms.items():
-        if method != "mean":
-            figures.save_figure(
-                figures.axis_relative_error_boxes(models[name]["per_bin"], name),
-                out_dir / f"axes_{method}.png",
-            )
-
-
-def _window_table(result: dict[str, Any]) -> Table:
-    w = result["data"]["windows"]
-    omega = result["windows_omega_rad_s"]
-    names = [n for n in omega if n != "gyro"]
-    rows = []
-    for i in range(min(w["count"], _REPORT_WINDOW_ROWS)):
-        gyro = np.degrees(omega["gyro"][i])
-        cells = [
-            f"{(w['start_s'][i] - result['data']['t0_s']) * 1e3:.1f}–"
-            f"{(w['end_s'][i] - result['data']['t0_s']) * 1e3:.1f}",
-            f"{w['events'][i]:,}",
-            " / ".join(f"{v:+.0f}" for v in gyro),
-        ]
-        for name in names:
-            err = np.degrees(np.linalg.norm(np.array(omega[name][i]) - omega["gyro"][i]))
-            est = " / ".join(f"{v:+.0f}" for v in np.degrees(omega[name][i]))
-            cells.append(f"{est} ({err:.0f})")
-        rows.append(cells)
-    more = (
-        f" (first {_REPORT_WINDOW_ROWS} of {w['count']}; all in windows.csv)"
-        if (w["count"] > _REPORT_WINDOW_ROWS)
-        else ""
-    )
-    return Table(
-        "Per window: mean tilt / pan / roll [deg/s] and, in brackets, the Euclidean error "
-        f"against the gyro's mean [deg/s]{more}",
-        ["window [ms from start]", "events", "gyro", *names],
-        rows,
-    )
-
-
-def _write_real_report(out_dir: Path, result: dict[str, Any]) -> None:
-    data, gyro, models = result["data"], result["gyro"], result["models"]
-    fit = gyro["offset_fit"]
-    win = data["windows"]
-    per_ms_models = {n: m for n, m in models.items() if m["metrics"] is not None}
-    snn_name = next(n for n, m in models.items() if m["method"] == "snn")
-    unit = "events" if win["by"] == "events" else "ms"
-    interval = gyro["sampling_interval"]
-    rotation = (
-        "as given (camera frame)"
-        if gyro["imu_to_camera"] is None
-        else "rotated into the camera frame by R = "
-        + str(np.round(np.array(gyro["imu_to_camera"]), 4).tolist())
-    )
-    if fit["offset_us"] is not None:
-        offset_text = (
-            f"Best clock offset: {fit['offset_us'] / 1000:+.2f} ms (normalised cross-correlation "
-            f"{fit['correlation']:.3f}, at 0 ms {fit['correlation_at_zero']:.3f}; "
-            f"{fit['n_estimates']} CMax estimates over {fit['step_us'] / 1000:g} ms steps of "
-            f"±{fit['max_offset_us'] / 1000:g} ms). Applied: "
-            f"{gyro['offset_applied_us'] / 1000:+.2f} ms. Apply the best fit with --gyro-offset "
-            "auto, or any value with --gyro-offset MS (added to the gyro's timestamps)."
-        )
-    else:
-        offset_text = f"No clock offset could be fitted: {fit['reason']}"
-    blocks: list[Block] = [
-        f"Recording: {data['recording']} ({data['sensor'][0]}x{data['sensor'][1]}, calibration "
-        f"{data['calibration'] or 'none: the simulator pinhole'}), {data['events']:,} events over "
-        f"{data['steps_ms']} ms ({data['event_rate_per_s'] / 1e6:.2f} M events/s) from "
-        f"t = {data['t0_s']:.6f} s. Metrics count from {data['warmup_ms']} ms on "
-        f"({data['scored_steps']} steps), after the SNN's warm-up.",
-        f"Gyro: {gyro['source']}, {gyro['samples']:,} samples, {rotation}; sampled every "
-        f"{interval['median_us'] / 1000:.3f} ms (median; {interval['min_us'] / 1000:.3f} to "
-        f"{interval['max_us'] / 1000:.3f} ms, {interval['rate_hz']:.0f} Hz), interpolated "
-        "linearly to each 1 ms step's end; per window, its exact mean over the window.",
-        f"Windows: {win['count']} of {win['size']:,} {unit} from the end of the warm-up "
-        f"({win['scored']} inside the gyro's span). Mean predictor: "
-        + ", ".join(f"{v:+.2f}" for v in np.degrees(models["Mean"]["omega_rad_s"]))
-        + f" deg/s ({models['Mean']['source']}). CMax (window): one contrast-maximization "
-        "estimate from all the events of each window.",
-        *[f"Warning: {w}" for w in result["warnings"]],
-        "## Clock offset between gyro and events",
-        offset_text,
-    ]
-    if (out_dir / "offset.png").exists():
-        blocks.append(
-            FigureRef(
-                "Cross-correlation of CMax (short windows) with the gyro against the offset "
-                "added to the gyro's timestamps.",
-                "offset.png",
-            )
-        )
-    blocks += [
-        "## Overall",
-        Table(
-            "Errors against the gyro: per ms (each model's output at each step's end) and per "
-            "window (each model's mean over the window against the gyro's mean)",
-            ["model", *metric_header("per window")],
-            [[name, *metric_cells(m)] for name, m in models.items()],
-        ),
-        axis_table({name: m["metrics"] for name, m in per_ms_models.items()}),
-        FigureRef(
-            "Angular velocity against time: the gyro (black, with its samples), each model per "
-            "ms, and CMax's one estimate per window (thick segments).",
-            "traces.png",
-        ),
-        "## Per window",
-        _window_table(result),
-        "## Per speed",
-        bin_table({name: m["per_bin"] for name, m in per_ms_models.items()}),
-        FigureRef("Median relative error per true-speed bin (paper Fig. 4).", "bins.png"),
-    ]
-    for name, m in per_ms_models.items():
-        if m["method"] != "mean":
-            blocks.append(
-                FigureRef(
-                    f"{name}: signed per-axis relative error per speed bin (paper Fig. 5).",
-                    f"axes_{m['method']}.png",
-                )
-            )
-    write_report(out_dir, f"spikegyro real-data evaluation: {snn_name}, CMax, mean", blocks)
 
 
 def evaluate_real(
