@@ -19,11 +19,13 @@ from spikegyro.errors import InputError
 _COMMANDS: dict[str, str] = {
     "info": "spikegyro.events.commands:info",
     "convert": "spikegyro.events.commands:convert_command",
+    "compare-stats": "spikegyro.events.commands:compare_stats",
     "demo": "spikegyro.demo:demo_command",
     "simulate": "spikegyro.sim.commands:simulate_dataset",
     "export-official": "spikegyro.sim.commands:export_official_command",
     "show": "spikegyro.sim.commands:show",
     "evaluate": "spikegyro.evaluate.commands:evaluate",
+    "evaluate-real": "spikegyro.evaluate.real:evaluate_real",
     "report": "spikegyro.evaluate.commands:report",
     "export-nir": "spikegyro.models.commands:export_nir_command",
     "train": "spikegyro.train.commands:train_command",

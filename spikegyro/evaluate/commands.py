@@ -16,7 +16,6 @@ and the mean predictor over a split's fixed windows, and writes into ``OUT``:
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
@@ -26,21 +25,20 @@ import numpy as np
 import torch
 import typer
 from rich.console import Console
-from rich.markup import escape
 from rich.progress import Progress
-from rich.table import Table as RichTable
 
 from spikegyro.baselines.mean import mean_predictions, training_mean_omega
 from spikegyro.errors import InputError
 from spikegyro.evaluate import figures, metrics
 from spikegyro.evaluate.bins import SPEED_BIN_EDGES_DEG_S, bin_labels, empty_bins, per_bin_metrics
 from spikegyro.evaluate.compare import METRICS_FORMAT, compare_runs, console_summary, table_one
+from spikegyro.evaluate.console import print_summary, write_json
 from spikegyro.evaluate.report import (
     Block,
     FigureRef,
     axis_table,
     bin_table,
-    fmt,
+    display_name,
     overall_table,
     write_report,
 )
@@ -54,20 +52,6 @@ from spikegyro.train.infer import predict_windows, spec_of
 
 MODEL_CHOICES = ("cmax",)
 DEFAULT_EXAMPLES = 3
-
-
-def display_name(payload: dict[str, Any]) -> str:
-    """The model's name in tables and legends, from its checkpoint (e.g. ``ResNet-50 (V)``)."""
-    model = payload.get("model", "model")
-    rep = payload.get("input", {}).get("representation", "")
-    tag = {"voxel": "V", "frames": "A", "spikes": "E"}.get(rep, rep)
-    if model == "snn6":
-        return "SNN-6" if rep == "spikes" else f"SNN-6 ({tag})"
-    if model == "ann6":
-        return "ANN-6" if rep == "voxel" else f"ANN-6 ({tag})"
-    if model == "resnet50":
-        return f"ResNet-50 ({tag})"
-    return model
 
 
 def _is_official(path: Path) -> bool:
@@ -181,11 +165,6 @@ def _write_predictions(
             t_start_us=np.array([w.t_start_us for w in windows], dtype=np.int64),
             num_events=np.array([len(w.events) for w in windows], dtype=np.int64),
         )
-
-
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n", encoding="utf-8")
 
 
 def _predict(
@@ -383,10 +362,12 @@ def run_evaluation(
 
     out_dir.mkdir(parents=True, exist_ok=True)
     _write_predictions(out_dir / "predictions.npz", windows, pred, gt, mean_omega)
-    _write_json(out_dir / "metrics.json", result)
+    write_json(out_dir / "metrics.json", result)
     example_refs = _example_figures(out_dir, windows, pred, picks, name)
     _evaluation_report(out_dir, result, example_refs)
-    _print_summary(console, result, out_dir)
+    title = f"{result['data']['dir']} / {result['data']['split']}"
+    print_summary(console, title, [result["model"], result["mean"]], result["warnings"])
+    console.print(f"wrote {out_dir}/metrics.json, predictions.npz, report.html, report.md")
     return result
 
 
@@ -432,27 +413,6 @@ def _evaluation_report(out_dir: Path, result: dict[str, Any], examples: list[Fig
     if examples:
         blocks += ["## Example windows", *examples]
     write_report(out_dir, f"spikegyro evaluation: {name}", blocks)
-
-
-def _print_summary(console: Console, result: dict[str, Any], out_dir: Path) -> None:
-    # The full table (report.md/html) has 12 columns; a terminal gets the headline ones.
-    table = RichTable(title=escape(f"{result['data']['dir']} / {result['data']['split']}"))
-    for col in ("model", "median rel. err.", "mean Eucl. err.", "RMSE", "20 ms: median rel."):
-        table.add_column(col, justify="left" if col == "model" else "right")
-    for entry in (result["model"], result["mean"]):
-        m, w = entry["metrics"], entry.get("window_metrics") or {}
-        table.add_row(
-            escape(entry["name"]),
-            fmt(m["median_relative_error"]),
-            f"{fmt(m['mean_euclidean_error_deg_s'], 1)} deg/s",
-            f"{fmt(m['rmse_deg_s'], 1)} deg/s",
-            fmt(w.get("median_relative_error")),
-        )
-    console.print(table)
-    console.print('per ms over steps >= 50; mean Eucl. err. is the paper\'s "RMSE"')
-    for w in result["warnings"]:
-        console.print(f"[yellow]warning:[/] {escape(w)}")
-    console.print(f"wrote {out_dir}/metrics.json, predictions.npz, report.html, report.md")
 
 
 def evaluate(

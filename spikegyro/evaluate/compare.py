@@ -27,6 +27,7 @@ from rich.table import Table as RichTable
 
 from spikegyro.errors import InputError
 from spikegyro.evaluate import energy, figures
+from spikegyro.evaluate.console import write_json
 from spikegyro.evaluate.metrics import WINDOW_METRIC_MS
 from spikegyro.evaluate.report import (
     PAPER_RESULTS,
@@ -40,7 +41,6 @@ from spikegyro.evaluate.report import (
     paper_row,
     write_report,
 )
-from spikegyro.events.io import atomic_path
 from spikegyro.models.registry import build_model, read_checkpoint
 from spikegyro.train.data import InputSpec
 
@@ -316,8 +316,7 @@ def compare_runs(
         }
         for k, m in models.items()
     }
-    with atomic_path(out_dir / "comparison.json") as tmp:
-        tmp.write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    write_json(out_dir / "comparison.json", summary)
     return models
 
 

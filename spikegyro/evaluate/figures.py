@@ -162,3 +162,64 @@ def axis_relative_error_boxes(per_bin: Sequence[Mapping[str, Any]], model_name: 
               title="axis")  # fmt: skip
     fig.tight_layout()
     return fig
+
+
+def omega_traces(
+    t_ms: np.ndarray,
+    series: Mapping[str, np.ndarray],
+    reference: tuple[np.ndarray, np.ndarray],
+    held: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
+    shade_until_ms: float | None = None,
+    title: str = "",
+) -> Figure:
+    """Angular velocity per axis over time: a reference, per-ms series and held estimates.
+
+    Args:
+        t_ms: (K,) times of the per-ms series, ms.
+        series: model name -> (K, 3) angular velocity, deg/s (drawn as lines in the model's
+            color).
+        reference: (times ms, (M, 3) deg/s) of the reference, drawn black with its samples.
+        held: model name -> (starts ms, ends ms, (n, 3) deg/s): one value held over each
+            interval (e.g. one estimate per window), drawn as thick segments.
+        shade_until_ms: grey out ``t < shade_until_ms`` (the unscored warm-up).
+    """
+    fig = Figure(figsize=(10.0, 7.0))
+    axes = fig.subplots(3, 1, sharex=True)
+    ref_t, ref = reference
+    for i, (ax, axis) in enumerate(zip(axes, AXES, strict=True)):
+        if shade_until_ms is not None:
+            ax.axvspan(min(t_ms[0], 0.0) if len(t_ms) else 0.0, shade_until_ms, color="0.92")
+        ax.plot(ref_t, ref[:, i], color="black", lw=1.4, marker=".", ms=3, label="gyro")
+        for name, values in series.items():
+            ax.plot(t_ms, values[:, i], color=model_color(name), lw=1.0, label=name)
+        for name, (starts, ends, values) in (held or {}).items():
+            ax.hlines(values[:, i], starts, ends, color=model_color(name), lw=3.0, alpha=0.7,
+                      label=name)  # fmt: skip
+        ax.set_ylabel(f"{axis} {AXIS_SYMBOLS[axis]}\n[deg/s]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    axes[-1].set_xlabel("time since the start [ms]" + (" (grey: warm-up, not scored)"
+                                                        if shade_until_ms else ""))  # fmt: skip
+    if title:
+        axes[0].set_title(title)
+    fig.tight_layout()
+    return fig
+
+
+def offset_curve(
+    offsets_ms: np.ndarray, correlations: np.ndarray, best_ms: float | None, applied_ms: float
+) -> Figure:
+    """Normalised cross-correlation of event-based estimates with the gyro against the clock
+    offset added to the gyro's timestamps (ms), with the best and the applied offset marked."""
+    fig = Figure(figsize=(7.0, 3.6))
+    ax = fig.add_subplot()
+    ax.plot(offsets_ms, correlations, color="black", lw=1.2)
+    if best_ms is not None:
+        ax.axvline(best_ms, color="#D55E00", ls="--", label=f"best fit {best_ms:+.2f} ms")
+    ax.axvline(applied_ms, color="#0072B2", ls=":", label=f"applied {applied_ms:+.2f} ms")
+    ax.set_xlabel("offset added to the gyro's timestamps [ms]")
+    ax.set_ylabel("normalised cross-correlation [-]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig

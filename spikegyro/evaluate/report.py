@@ -48,6 +48,20 @@ _REPRESENTATION_TAGS = {
 _DEFAULT_REPRESENTATION = {"snn6": "spikes", "ann6": "voxel"}
 
 
+def display_name(payload: dict[str, Any]) -> str:
+    """The model's name in tables and legends, from its checkpoint (e.g. ``ResNet-50 (V)``)."""
+    model = payload.get("model", "model")
+    rep = payload.get("input", {}).get("representation", "")
+    tag = {"voxel": "V", "frames": "A", "spikes": "E"}.get(rep, rep)
+    if model == "snn6":
+        return "SNN-6" if rep == "spikes" else f"SNN-6 ({tag})"
+    if model == "ann6":
+        return "ANN-6" if rep == "voxel" else f"ANN-6 ({tag})"
+    if model == "resnet50":
+        return f"ResNet-50 ({tag})"
+    return model
+
+
 def paper_row(result: Mapping[str, Any]) -> str | None:
     """The row of the paper's Table I that a model's results (a ``metrics.json`` model entry)
     compare with, or None.
@@ -196,6 +210,38 @@ PER_MS_LABEL = f"per ms (steps ≥ {EVAL_START_STEP})"
 PER_WINDOW_LABEL = f"per {WINDOW_METRIC_MS} ms window (mean prediction vs mean truth)"
 
 
+def metric_header(window_label: str = PER_WINDOW_LABEL) -> list[str]:
+    """Column heads of :func:`metric_cells`: per-ms then per-window metrics."""
+    return [
+        f"{PER_MS_LABEL}: median rel. error",
+        f'{PER_MS_LABEL}: mean Eucl. error (paper "RMSE") [deg/s]',
+        f"{PER_MS_LABEL}: RMSE [deg/s]",
+        f"{PER_MS_LABEL}: steps",
+        f"{window_label}: median rel. error",
+        f"{window_label}: mean Eucl. error [deg/s]",
+        f"{window_label}: RMSE [deg/s]",
+        f"{window_label}: windows",
+    ]
+
+
+def metric_cells(result: Mapping[str, Any]) -> list[str]:
+    """The cells under :func:`metric_header` for one model entry: ``metrics`` (from
+    :func:`spikegyro.evaluate.metrics.summary`, or None: all ``-``) and optionally
+    ``window_metrics`` (the same keys plus ``n_windows``; ``-`` where missing)."""
+    m = result.get("metrics") or {}
+    w = result.get("window_metrics") or {}
+    return [
+        fmt(m.get("median_relative_error")),
+        fmt(m.get("mean_euclidean_error_deg_s"), 1),
+        fmt(m.get("rmse_deg_s"), 1),
+        fmt(m.get("n_pairs")),
+        fmt(w.get("median_relative_error")),
+        fmt(w.get("mean_euclidean_error_deg_s"), 1),
+        fmt(w.get("rmse_deg_s"), 1),
+        fmt(w.get("n_windows")),
+    ]
+
+
 def overall_table(models: Mapping[str, Mapping[str, Any]], caption: str) -> Table:
     """One row per model: our per-ms and per-window metrics, then the paper's numbers.
 
@@ -206,14 +252,7 @@ def overall_table(models: Mapping[str, Mapping[str, Any]], caption: str) -> Tabl
     """
     header = [
         "model",
-        f"{PER_MS_LABEL}: median rel. error",
-        f'{PER_MS_LABEL}: mean Eucl. error (paper "RMSE") [deg/s]',
-        f"{PER_MS_LABEL}: RMSE [deg/s]",
-        f"{PER_MS_LABEL}: steps",
-        f"{PER_WINDOW_LABEL}: median rel. error",
-        f"{PER_WINDOW_LABEL}: mean Eucl. error [deg/s]",
-        f"{PER_WINDOW_LABEL}: RMSE [deg/s]",
-        f"{PER_WINDOW_LABEL}: windows",
+        *metric_header(),
         "paper row (Table I)",
         "paper: median rel. error",
         'paper: "RMSE" [deg/s]',
@@ -221,7 +260,6 @@ def overall_table(models: Mapping[str, Mapping[str, Any]], caption: str) -> Tabl
     rows = []
     sub_windows: list[list[int]] = []
     for name, result in models.items():
-        m = result["metrics"]
         w = result.get("window_metrics") or {}
         sub_windows = sub_windows or w.get("sub_windows_ms", [])
         row = paper_row(result)
@@ -229,14 +267,7 @@ def overall_table(models: Mapping[str, Mapping[str, Any]], caption: str) -> Tabl
         rows.append(
             [
                 name,
-                fmt(m["median_relative_error"]),
-                fmt(m["mean_euclidean_error_deg_s"], 1),
-                fmt(m["rmse_deg_s"], 1),
-                fmt(m["n_pairs"]),
-                fmt(w.get("median_relative_error")),
-                fmt(w.get("mean_euclidean_error_deg_s"), 1),
-                fmt(w.get("rmse_deg_s"), 1),
-                fmt(w.get("n_windows")),
+                *metric_cells(result),
                 row or "-",
                 fmt(paper.get("median_relative_error"), 2),
                 fmt(paper.get("mean_euclidean_error_deg_s"), 1),

@@ -1,7 +1,10 @@
-"""``spikegyro info`` (a summary of an event file) and ``spikegyro convert`` (between formats)."""
+"""``spikegyro info`` (a summary of an event file), ``spikegyro convert`` (between formats) and
+``spikegyro compare-stats`` (real recordings' event statistics against a simulated dataset's, see
+:mod:`spikegyro.events.stats`)."""
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -11,9 +14,11 @@ from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from spikegyro.errors import InputError
+from spikegyro.events import stats
 from spikegyro.events.convert import convert
-from spikegyro.events.imu import imu_rotation
-from spikegyro.events.io import detect_format, read_recording
+from spikegyro.events.imu import IMU_TO_CAMERA_HELP, imu_rotation
+from spikegyro.events.io import atomic_path, detect_format, read_recording, recording_name
 
 
 def info(
@@ -66,8 +71,7 @@ def convert_command(
     imu_to_camera: str = typer.Option(
         None,
         "--imu-to-camera",
-        help="Rotate the input's gyro into the camera frame: signed IMU axes per camera axis "
-        "('-x,-y,z') or nine numbers (R row by row, ω_camera = R ω_imu).",
+        help=IMU_TO_CAMERA_HELP,
     ),
     chunk_events: int = typer.Option(1_000_000, min=1, help="Events per chunk (bounds memory)."),
 ) -> None:
@@ -96,3 +100,92 @@ def convert_command(
         f"{src} ({detect_format(src)}) -> {dst}: {n_events:,} events, {n_gyro:,} gyro samples, "
         f"{wall:.1f} s ({n_events / max(wall, 1e-9) / 1e6:.2f} M events/s)"
     )
+
+
+STATS_FORMAT = "spikegyro-event-stats/1"
+
+
+def _windows_of(path: Path, window_us: int, sensor: tuple[int, int] | None) -> list[dict]:
+    events = read_recording(path, sensor=sensor).events
+    return [stats.window_stats(ev, span) for ev, span in stats.split_windows(events, window_us)]
+
+
+def compare_stats(
+    real: list[Path] = typer.Argument(
+        ..., help="Real recordings: event files or Event Camera Dataset folders."
+    ),
+    sim: Path = typer.Option(
+        ..., "--sim", help="A dataset folder (its .h5 files, in DIR or DIR/{train,val,test})."
+    ),
+    out: Path = typer.Option(..., "--out", help="Output folder: stats.json, sim_vs_real.png."),
+    window_ms: float = typer.Option(
+        100.0, "--window-ms", min=1.0, help="Cut recordings into windows this long, ms."
+    ),
+    max_sim_windows: int = typer.Option(
+        200, "--max-sim-windows", min=1, help="Use at most this many simulated windows."
+    ),
+    width: int = typer.Option(None, help="Sensor width of text files (default 240)."),
+    height: int = typer.Option(None, help="Sensor height of text files (default 180)."),
+) -> None:
+    """Compare real recordings' event statistics with a simulated dataset's: event rate, ON/OFF
+    balance, inter-event intervals per pixel, hot-pixel share and coverage."""
+    from spikegyro.events.plot import stats_figure
+
+    console = Console(stderr=True)
+    sensor = (width, height) if width and height else None
+    files = sorted(p for p in Path(sim).rglob("*") if p.suffix.lower() in (".h5", ".hdf5"))
+    if not files:
+        raise InputError(f"{sim}: no .h5 sequence files; simulate one with `spikegyro simulate`.")
+    window_us = round(window_ms * 1000)
+    real_windows: dict[str, list[dict]] = {}
+    sim_windows: list[dict] = []
+    with Progress(console=console, transient=True) as bar:
+        task = bar.add_task("real recordings", total=len(real))
+        for path in real:
+            name = recording_name(Path(path))
+            real_windows[name] = _windows_of(Path(path), window_us, sensor)
+            if not real_windows[name]:
+                raise InputError(f"{path}: the file holds no events.")
+            bar.advance(task)
+        task = bar.add_task("simulated sequences", total=len(files))
+        for path in files:
+            sim_windows += _windows_of(path, window_us, None)
+            bar.advance(task)
+            if len(sim_windows) >= max_sim_windows:
+                break
+    sim_windows = sim_windows[:max_sim_windows]
+    result = {
+        "format": STATS_FORMAT,
+        "window_ms": window_ms,
+        "iei_edges_us": stats.IEI_EDGES_US.tolist(),
+        "rate_edges_hz": stats.RATE_EDGES_HZ.tolist(),
+        "sim": {"dir": str(sim), "files": len(files), **stats.pool(sim_windows)},
+        "real": {
+            name: {"path": str(path), **stats.pool(ws)}
+            for (name, ws), path in zip(real_windows.items(), real, strict=True)
+        },
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out / "stats.json") as tmp:
+        tmp.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    fig = stats_figure(real_windows, sim_windows, stats.IEI_EDGES_US, stats.RATE_EDGES_HZ,
+                       sim_label=f"simulator ({Path(sim).name})")  # fmt: skip
+    with atomic_path(out / "sim_vs_real.png") as tmp:
+        fig.savefig(tmp, dpi=90, format="png", metadata={"Software": None})
+    table = Table(title=f"median over {window_ms:g} ms windows (5th/95th percentiles: stats.json)")
+    for col in ("data", "windows", "events/ms", "ON frac.", "top 1 % share", "coverage",
+                "IEI median [ms]"):  # fmt: skip
+        table.add_column(col, justify="left" if col == "data" else "right")
+    for name, pooled in [("simulator", result["sim"]), *result["real"].items()]:
+        keys = ("rate_per_ms", "on_fraction", "top_share", "coverage", "iei_median_us")
+        table.add_row(name, str(pooled["windows"]), *(_spread(pooled, key) for key in keys))
+    console.print(table)
+    console.print(f"wrote {out}/stats.json, {out}/sim_vs_real.png")
+
+
+def _spread(pooled: dict, key: str) -> str:
+    s = pooled["top_share"]["0.01"] if key == "top_share" else pooled[key]
+    if not s["n"]:
+        return "-"
+    scale = 1e-3 if key == "iei_median_us" else 1.0
+    return f"{s['median'] * scale:.{1 if key == 'rate_per_ms' else 3}f}"

@@ -295,6 +295,14 @@ def _read_npz(path: Path, sensor: tuple[int, int] | None) -> Recording:
     return Recording(events=events, gyro=gyro, attrs=attrs)
 
 
+def recording_name(path: Path) -> str:
+    """A short name for a recording: its folder for ``events.txt`` or an ECD folder, else the
+    file's stem."""
+    if path.is_dir() or path.name == "events.txt":
+        return (path if path.is_dir() else path.parent).name
+    return path.stem
+
+
 def read_recording(
     path: str | os.PathLike,
     *,

@@ -117,3 +117,86 @@ def plot_events_and_omega(
     with atomic_path(out) as tmp:
         fig.savefig(tmp, dpi=130, format=out.suffix.lstrip(".") or "png")
     return out
+
+
+_STAT_PANELS = (
+    ("rate_per_ms", "event rate [events/ms]", True),
+    ("on_fraction", "ON fraction [-]", False),
+    ("top_share", "share of events from the 1 % most active pixels [-]", False),
+    ("coverage", "pixels with an event [-]", False),
+)
+_REAL_COLORS = ("#D55E00", "#0072B2", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000")
+
+
+def _window_value(stats: dict, key: str) -> float | None:
+    return stats["top_share"]["0.01"] if key == "top_share" else stats[key]
+
+
+def stats_figure(
+    real: dict[str, list[dict]],
+    sim: list[dict],
+    iei_edges_us: np.ndarray,
+    rate_edges_hz: np.ndarray,
+    sim_label: str = "simulator",
+) -> Figure:
+    """Event statistics of real recordings against the simulator's (overlaid histograms).
+
+    Args:
+        real: recording name -> its windows' :func:`spikegyro.events.stats.window_stats`.
+        sim: the simulated windows' statistics.
+        iei_edges_us, rate_edges_hz: the histogram bins those statistics use.
+
+    Four panels show a per-window statistic: the simulator's windows as a grey histogram, each
+    real window as a colored tick (a recording's median as a dashed line). Two panels show the
+    pooled distributions of inter-event intervals per pixel and of per-pixel event rates, as the
+    share of intervals (pixels) per bin.
+    """
+    fig = Figure(figsize=(13.0, 7.6))
+    axes = fig.subplots(2, 3).ravel()
+    colors = {name: _REAL_COLORS[i % len(_REAL_COLORS)] for i, name in enumerate(real)}
+    for ax, (key, label, log) in zip(axes[:4], _STAT_PANELS, strict=True):
+        sim_v = np.array([v for w in sim if (v := _window_value(w, key)) is not None])
+        real_v = {n: [v for w in ws if (v := _window_value(w, key)) is not None]
+                  for n, ws in real.items()}  # fmt: skip
+        everything = np.concatenate([sim_v, *[np.array(v) for v in real_v.values()]])
+        lo, hi = (everything.min(), everything.max()) if everything.size else (0.0, 1.0)
+        if log:
+            lo = max(lo, 1e-3)
+            bins = np.logspace(np.log10(lo) - 0.05, np.log10(max(hi, lo * 1.01)) + 0.05, 30)
+            ax.set_xscale("log")
+        else:
+            pad = 0.05 * max(hi - lo, 1e-3)
+            bins = np.linspace(lo - pad, hi + pad, 30)
+        ax.hist(sim_v, bins=bins, color="0.7", edgecolor="0.5", label=f"{sim_label} windows")
+        top = ax.get_ylim()[1]
+        for name, values in real_v.items():
+            if not values:
+                continue
+            ax.vlines(values, 0, 0.12 * top, color=colors[name], lw=1.5)
+            ax.axvline(float(np.median(values)), color=colors[name], ls="--", lw=1.2, label=name)
+        ax.set_xlabel(label)
+        ax.set_ylabel("windows")
+        ax.grid(alpha=0.3)
+    for ax, key, edges, label in (
+        (axes[4], "iei_hist", iei_edges_us, "inter-event interval per pixel [µs]"),
+        (axes[5], "rate_hist", rate_edges_hz, "event rate of a pixel that fired [events/s]"),
+    ):
+        centres = np.sqrt(edges[1:] * edges[:-1])
+        total = np.sum([w[key] for w in sim], axis=0)
+        if total.sum():
+            ax.fill_between(centres, total / total.sum(), step="mid", color="0.75",
+                            label=sim_label)  # fmt: skip
+        for name, windows in real.items():
+            counts = np.sum([w[key] for w in windows], axis=0)
+            if counts.sum():
+                ax.step(centres, counts / counts.sum(), where="mid", color=colors[name], lw=1.4,
+                        label=name)  # fmt: skip
+        ax.set_xscale("log")
+        ax.set_xlabel(label)
+        ax.set_ylabel("share per bin (10 bins/decade)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, loc="upper left")
+    axes[4].legend(fontsize=7, loc="upper left")
+    fig.suptitle("Event statistics: real recordings (colors) against the simulator (grey)")
+    fig.tight_layout()
+    return fig
