@@ -55,7 +55,7 @@ from spikegyro.evaluate.real_report import write_figures, write_real_report, wri
 from spikegyro.evaluate.report import (
     display_name,
 )
-from spikegyro.events.calib import Calibration, PinholeCamera, resolve_calibration
+from spikegyro.events.calib import Calibration, resolve_calibration
 from spikegyro.events.core import EventArray, GyroTrace
 from spikegyro.events.imu import (
     IMU_TO_CAMERA_HELP,
@@ -158,17 +158,6 @@ def bin_means(
     return (integral(ends_us) - integral(starts_us)) / np.maximum(span, 1e-12)
 
 
-def sensor_pinhole(
-    calibration: Calibration | None, attrs: dict[str, Any], width: int, height: int
-) -> PinholeCamera:
-    """The undistorted pinhole with the sensor's own intrinsics, on which CMax runs."""
-    if calibration is not None:
-        c = calibration
-        return PinholeCamera(width, height, c.fx, c.fy, c.cx, c.cy)
-    cam = cmax.camera_from_attrs(attrs, width, height)
-    return PinholeCamera(width, height, cam.fx, cam.fy, cam.cx, cam.cy)
-
-
 def _snn_per_ms(
     events: EventArray,
     checkpoint: Path,
@@ -197,19 +186,16 @@ def _snn_per_ms(
 
 def _cmax_windows(
     events: EventArray,
-    camera: PinholeCamera,
+    camera: Any,
     config: cmax.CMaxConfig,
     starts: np.ndarray,
     ends: np.ndarray,
     progress: Any,
 ) -> np.ndarray:
-    """One CMax estimate from all the events of each window (rad/s, (n, 3))."""
+    """One CMax estimate from all the events of each window, for its middle (rad/s, (n, 3))."""
     out = np.zeros((len(starts), 3))
     for i, (a, b) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
-        whole = replace(config, window_ms=(b - a) / 1000 + 1.0, window_events=0)
-        out[i] = cmax.predict_stream(
-            events.slice_time(a, b), camera, whole, t_first_us=b, t_end_us=b
-        )[1][0]
+        out[i] = cmax.estimate_window(events.slice_time(a, b), camera, config, t_ref_us=(a + b) / 2)
         progress(i + 1, len(starts))
     return out
 
@@ -340,8 +326,8 @@ def run_real_evaluation(
         raw_gyro, offset_ms, config, t0 + config.warmup_ms * BIN_US, ends[-1], gyro_source
     )
     width, height = events.sensor_size
-    camera = sensor_pinhole(calibration, rec.attrs, width, height)
-    cmax_events = events if calibration is None else calibration.map_events(events, camera)
+    # CMax undistorts each event to its ray itself: it takes the raw events and the calibration.
+    camera = calibration or cmax.camera_from_attrs(rec.attrs, width, height)
     cmax_config = cmax.CMaxConfig()
 
     # The user's windows, tiled from the end of the warm-up.
@@ -373,24 +359,17 @@ def run_real_evaluation(
         snn, payload = _snn_per_ms(
             events, checkpoint, calibration, t0, steps, str(recording), tracker("SNN-6")
         )
-        t_cmax, w_cmax = cmax.predict_stream(
-            cmax_events,
-            camera,
-            cmax_config,
-            t_first_us=t0 + cmax_config.stride_ms * BIN_US,
-            t_end_us=t0 + steps * BIN_US,
-            progress=tracker("CMax"),
-        )
-        cmax_ms = cmax.hold_per_ms(t_cmax, w_cmax, t0, steps)
+        t_cmax, w_cmax = cmax.predict_stream(events, camera, cmax_config, progress=tracker("CMax"))
+        cmax_ms = cmax.per_ms(t_cmax, w_cmax, ends)  # as `spikegyro baseline cmax` writes it
         cmax_win = _cmax_windows(
-            cmax_events, camera, cmax_config, w_starts, w_ends, tracker("CMax per window")
+            events, camera, cmax_config, w_starts, w_ends, tracker("CMax per window")
         )
         # Independent windows: a warm-started stream lags fast changes (by ~2 ms at a 5 ms
         # stride on simulated data), which would bias the offset.
         window_us = round(offset_cfg.window_ms * 1000)
         off_ends = np.arange(t0 + window_us, t0 + steps * BIN_US + 1, offset_cfg.stride_ms * BIN_US)
         w_off = _cmax_windows(
-            cmax_events,
+            events,
             camera,
             cmax_config,
             off_ends - window_us,
