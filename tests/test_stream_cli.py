@@ -45,13 +45,14 @@ def test_predict_ecd_folder_with_calibration_and_gyro(tmp_path):
     (folder / "calib.txt").write_text("210 209 47.5 35.5 -0.3 0.1 0.0002 -0.0005 0.0\n")
     out = tmp_path / "pred.csv"
     # the folder's calib.txt is picked up without --calib
-    proc = _run(folder, "--checkpoint", ckpt, "--width", 96, "--height", 72,
-                "--gyro", tmp_path / "gyro.txt", "--out", out)  # fmt: skip
+    # the gyro is mounted with its x and y axes reversed: --imu-to-camera undoes that
+    proc = _run(folder, "--checkpoint", ckpt, "--width", 96, "--height", 72, "--gyro",
+                tmp_path / "gyro.txt", "--imu-to-camera=-x,-y,z", "--out", out)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     pred = read_predictions(out)
     assert len(pred["t_us"]) == 120
     assert pred["t_us"][0] == 2_001_000 and np.all(np.diff(pred["t_us"]) == 1000)
-    np.testing.assert_allclose(pred["gyro_omega"], np.tile([0.1, -0.2, 0.3], (120, 1)), atol=1e-6)
+    np.testing.assert_allclose(pred["gyro_omega"], np.tile([-0.1, 0.2, 0.3], (120, 1)), atol=1e-6)
     assert "real time" in proc.stderr and "RMSE" in proc.stderr
     assert "using the calibration" in proc.stderr
     assert out.with_suffix(".png").stat().st_size > 0

@@ -14,7 +14,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from spikegyro.baselines.cmax import CMaxConfig, camera_from_attrs, per_ms, predict_stream
 from spikegyro.errors import InputError
 from spikegyro.events.calib import resolve_calibration
-from spikegyro.events.io import read_gyro, read_recording
+from spikegyro.events.imu import IMU_TO_CAMERA_HELP, imu_rotation
+from spikegyro.events.io import EVENT_FILE_HELP, read_gyro, read_recording
 from spikegyro.stream.predict import WARMUP_STEPS, ErrorStats
 from spikegyro.stream.writer import check_prediction_path, write_predictions
 
@@ -29,7 +30,8 @@ app = typer.Typer(
 @app.command("cmax")
 def cmax_command(
     events: Path = typer.Argument(
-        ..., help="Event file: .h5/.hdf5, .npz, events.txt (t x y p) or an ECD folder."
+        ...,
+        help=EVENT_FILE_HELP,
     ),
     calib: Path = typer.Option(
         None,
@@ -46,6 +48,7 @@ def cmax_command(
         help="Reference angular velocity (gyro/IMU text or a file with ground truth): adds it "
         "and the error to the output and prints metrics.",
     ),
+    imu_to_camera: str = typer.Option(None, "--imu-to-camera", help=IMU_TO_CAMERA_HELP),
     start: float = typer.Option(0.0, "--start", help="Start, seconds after the first event."),
     end: float = typer.Option(None, "--end", help="End, seconds after the first event."),
     out: Path = typer.Option(Path("pred.csv"), "--out", "-o", help="Output .csv or .h5."),
@@ -124,7 +127,9 @@ def cmax_command(
     reference = None
     stats = ErrorStats()
     if gyro is not None:
-        trace = read_gyro(gyro)
+        trace = read_gyro(
+            gyro, imu_to_camera=imu_rotation(imu_to_camera) if imu_to_camera else None
+        )
         reference = trace.interpolate(times)
         reference[(times < trace.t[0]) | (times > trace.t[-1])] = np.nan
         scored = times > t0 + WARMUP_STEPS * BIN_US

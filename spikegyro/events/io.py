@@ -59,6 +59,13 @@ _CAMERA_SUFFIXES = {
 }
 
 
+EVENT_FILE_HELP = (
+    "Event file: .h5/.hdf5, .npz, events.txt (t x y p), an ECD folder, .aedat4, jAER .aedat, "
+    "Prophesee .raw/.dat or a ROS .bag (the format is detected from the content)."
+)
+"""Help text of the commands' event-file argument: what :func:`read_recording` reads."""
+
+
 def _sniff_camera(path: Path) -> str | None:
     head = b""
     if path.is_file():

@@ -9,6 +9,8 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from spikegyro.events.calib import resolve_calibration
+from spikegyro.events.imu import IMU_TO_CAMERA_HELP, imu_rotation
+from spikegyro.events.io import EVENT_FILE_HELP
 from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_streaming_model
 from spikegyro.stream.predict import WARMUP_STEPS, predict_stream, read_time_span
 from spikegyro.stream.writer import check_prediction_path
@@ -16,7 +18,8 @@ from spikegyro.stream.writer import check_prediction_path
 
 def predict(
     events: Path = typer.Argument(
-        ..., help="Event file: .h5/.hdf5, .npz, events.txt (t x y p) or an ECD folder."
+        ...,
+        help=EVENT_FILE_HELP,
     ),
     checkpoint: Path = typer.Option(
         None,
@@ -40,6 +43,7 @@ def predict(
         help="Reference angular velocity (gyro 't wx wy wz', IMU 't ax ay az gx gy gz', or a file "
         "with ground truth): adds it and the error to the output, prints metrics, draws a plot.",
     ),
+    imu_to_camera: str = typer.Option(None, "--imu-to-camera", help=IMU_TO_CAMERA_HELP),
     start: float = typer.Option(0.0, "--start", help="Start, seconds after the first event."),
     end: float = typer.Option(None, "--end", help="End, seconds after the first event."),
     out: Path = typer.Option(Path("pred.csv"), "--out", "-o", help="Output .csv or .h5."),
@@ -89,6 +93,7 @@ def predict(
             out,
             calibration=calibration,
             gyro_path=gyro,
+            gyro_rotation=imu_rotation(imu_to_camera) if imu_to_camera else None,
             sensor=sensor,
             start_s=start,
             end_s=end,

@@ -21,7 +21,7 @@ import numpy as np
 
 from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration, PinholeCamera
-from spikegyro.events.core import EventArray, GyroTrace
+from spikegyro.events.core import EventArray
 from spikegyro.events.io import detect_format, iter_event_chunks, read_gyro
 from spikegyro.stream.stateful import StreamingSNN
 from spikegyro.stream.writer import PredictionWriter, write_predictions
@@ -222,18 +222,6 @@ def read_time_span(path: str | os.PathLike) -> tuple[int, int] | None:
     return None
 
 
-def _read_reference(path: str | os.PathLike) -> GyroTrace:
-    """Gyro samples from a gyro/IMU text file or an event file with ground truth (HDF5: only the
-    ``ang_*`` datasets are read, not the events)."""
-    path = Path(path)
-    if detect_format(path) == "hdf5":
-        with h5py.File(path, "r") as f:
-            if "ang_ts" not in f or "ang_xyz" not in f:
-                raise InputError(f"{path}: the file holds no angular velocity (ang_ts, ang_xyz).")
-            return GyroTrace.from_arrays(f["ang_ts"][()], f["ang_xyz"][()], source=str(path))
-    return read_gyro(path)
-
-
 def _bounded_chunks(
     path: Path,
     sensor: tuple[int, int] | None,
@@ -296,6 +284,7 @@ def predict_stream(
     *,
     calibration: Calibration | None = None,
     gyro_path: str | os.PathLike | None = None,
+    gyro_rotation: np.ndarray | None = None,
     sensor: tuple[int, int] | None = None,
     start_s: float = 0.0,
     end_s: float | None = None,
@@ -313,6 +302,8 @@ def predict_stream(
         calibration: the sensor's calibration; None when the sensor is the model's own.
         gyro_path: reference angular velocity (gyro/IMU text, or a file with ground truth),
             interpolated to the prediction times; adds columns, error statistics and a plot.
+        gyro_rotation: R with ω_camera = R · ω_gyro (:func:`spikegyro.events.imu.imu_rotation`)
+            when the gyro is not in the camera frame.
         sensor: (width, height) override for files that do not say (text defaults to 240x180).
         start_s, end_s: the time span to run, seconds after the file's first event (rounded down
             to a whole millisecond, so bins align with the simulator's and the gyro's clock).
@@ -320,7 +311,7 @@ def predict_stream(
         plot: draw predictions against the gyro beside ``out_path`` (``.png``) when a gyro is given.
     """
     events_path = Path(events_path)
-    gyro = None if gyro_path is None else _read_reference(gyro_path)
+    gyro = None if gyro_path is None else read_gyro(gyro_path, imu_to_camera=gyro_rotation)
     if end_s is not None and end_s <= start_s:
         raise InputError(f"--end {end_s} s must be after --start {start_s} s.")
     result = StreamResult()
