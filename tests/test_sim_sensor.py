@@ -195,9 +195,9 @@ def test_preset_draws_stay_in_range_and_its_extreme_lenses_do_not_fold():
     assert mean_c.min() >= 0.1 - 1e-9 and mean_c.max() <= 0.6 + 1e-9
     assert np.median(mean_c) == pytest.approx(np.sqrt(0.1 * 0.6), rel=0.15)  # log-uniform
     ratios = [d.contrast_on / d.contrast_off for d in draws]
-    assert min(ratios) < 0.8 and max(ratios) > 1.25  # ON and OFF are drawn apart
+    assert min(ratios) < 0.9 and max(ratios) > 1.6  # ON and OFF are drawn apart
     assert {d.hot_pixels for d in draws} >= {0, 20}
-    assert all(300 <= d.refractory_us <= 3000 for d in draws)
+    assert all(1000 <= d.refractory_us <= 3000 for d in draws)
     cam = Camera()
     off = preset.principal_offset_px
     for k1, k2, dcx, dcy, f in product(preset.k1, preset.k2, off, off, preset.focal_scale):

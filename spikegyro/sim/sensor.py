@@ -15,12 +15,13 @@ sequence, which :func:`spikegyro.sim.esim.simulate` applies:
   scenes and rotations that spreads 100 ms windows over the span of real DAVIS240C rotation
   recordings (0.2 to 5.6 M events/s in the Event Camera Dataset; docs/notes/sensor.md has the
   measurement), where U(0.2, 1.5) left the median window at 0.1 M events/s. ON/OFF differ by a
-  factor log-uniform in [1/1.5, 1.5] (real ON and OFF thresholds are set by separate biases; the
-  four ECD rotation windows have 42-43 % ON events).
+  factor C_on/C_off log-uniform in [0.8, 1.8]: real ON and OFF thresholds are set by separate
+  biases, and real recordings are OFF-heavy (the four ECD rotation windows have 42 % ON events,
+  which takes C_on/C_off ≈ 1.4; the Rueckauer & Delbruck recording 51 %, ≈ 1).
 - **Per-pixel threshold mismatch**, std U(0.02, 0.06) log units: Lichtsteiner et al. (JSSC 2008)
   and Brandli et al. (JSSC 2014) report a 2.1 % contrast mismatch, v2e defaults to 0.03 and its
   'noisy' model to 0.05.
-- **Refractory period**, log-uniform in [300, 3000] µs (v2e's default is 500 µs; the DAVIS
+- **Refractory period**, log-uniform in [1, 3] ms (v2e's default is 500 µs; the DAVIS
   refractory bias spans µs to ms). Measured with ``spikegyro compare-stats``: no pixel of the
   four Event Camera Dataset rotation windows fires twice within 1.36 ms, none of the Rueckauer &
   Delbruck recording within 2.9 ms, while an ideal simulated sensor puts up to a third of its
@@ -158,9 +159,9 @@ class SensorPreset:
     """
 
     contrast_log: Range = (0.1, 0.6)
-    on_off_ratio_log: Range = (1 / 1.5, 1.5)
+    on_off_ratio_log: Range = (0.8, 1.8)
     mismatch_std: Range = (0.02, 0.06)
-    refractory_us_log: Range = (300.0, 3000.0)
+    refractory_us_log: Range = (1000.0, 3000.0)
     shot_noise_hz_log: Range = (0.05, 2.0)
     leak_hz_log: Range = (0.01, 0.5)
     hot_pixels: tuple[int, int] = (0, 20)
