@@ -250,6 +250,27 @@ def relative_difference(a: torch.Tensor, b: torch.Tensor) -> float:
 # ------------------------------------------------------------------------------ the CLI
 
 
+def test_a_resumed_run_on_other_validation_data_starts_its_best_record_afresh(dataset, tmp_path):
+    run = tmp_path / "relay"
+    train(tiny_config(dataset, run, iterations=2), progress=False)
+    first = torch.load(run / "resume.pt", weights_only=False)
+    # Same data: the record carries over, so a worse score later cannot replace best.pt.
+    train(tiny_config(dataset, run, iterations=3, val_every=3), resume=True, progress=False)
+    same = torch.load(run / "resume.pt", weights_only=False)
+    assert same["best_on"] == first["best_on"] and same["best"] <= first["best"]
+    # Other validation windows (here: fewer of them): the old best no longer counts.
+    train(
+        tiny_config(dataset, run, iterations=4, val_every=4, val_windows=1),
+        resume=True,
+        progress=False,
+    )
+    other = torch.load(run / "resume.pt", weights_only=False)
+    with open(run / "log.csv", newline="") as f:
+        last_val = float(list(csv.DictReader(f))[-1]["val_median_rel"])
+    assert other["best_on"] != first["best_on"]
+    assert other["best"] == pytest.approx(last_val, rel=1e-5)
+
+
 def test_cli_trains_overrides_options_and_resumes(dataset, tmp_path):
     runner = CliRunner()
     out = tmp_path / "cli"

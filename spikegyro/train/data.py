@@ -24,6 +24,7 @@ input tensors.
 from __future__ import annotations
 
 import functools
+import hashlib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -242,6 +243,19 @@ def fixed_windows(data_dir: str | Path, split: str, window_ms: int = 100) -> lis
 
 
 # --------------------------------------------------------------------------------- encoding
+
+
+def windows_fingerprint(windows: list[Window]) -> str:
+    """A short hash identifying a list of windows by their data (source, start, events, ω).
+
+    Training keeps the best validation score with the fingerprint of the windows it was
+    measured on, so a resumed run on other data starts its best-checkpoint record afresh.
+    """
+    digest = hashlib.sha256()
+    for w in windows:
+        digest.update(f"{w.source}|{w.t_start_us}|{len(w.events)}|".encode())
+        digest.update(np.ascontiguousarray(w.omega, dtype=np.float64).tobytes())
+    return digest.hexdigest()[:16]
 
 
 def _scaled_events(window: Window, spec: InputSpec) -> EventArray:

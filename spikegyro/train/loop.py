@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import math
 import random
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
@@ -42,6 +43,7 @@ from spikegyro.train.data import (
     events_on_device,
     fixed_windows,
     sequence_windows,
+    windows_fingerprint,
 )
 from spikegyro.train.infer import predict_windows
 from spikegyro.train.presets import TrainConfig, load_config
@@ -282,9 +284,9 @@ def _train(
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: lr_factor(s, config))
 
-    start_step, best, elapsed0 = 0, math.inf, 0.0
+    start_step, best, elapsed0, best_on = 0, math.inf, 0.0, ""
     if resume:
-        start_step, best, elapsed0 = _load_resume(files, model, optimizer, scheduler, ctx)
+        start_step, best, elapsed0, best_on = _load_resume(files, model, optimizer, scheduler, ctx)
     net: nn.Module = model
     if ctx.distributed:
         ids = [ctx.device.index] if ctx.device.type == "cuda" else None
@@ -293,6 +295,14 @@ def _train(
     events = events_on_device(ctx.device, config.data_path)
     samples = training_samples(config, spec, events=events)
     val_windows = validation_windows(config) if ctx.is_main else []
+    val_id = windows_fingerprint(val_windows)
+    if ctx.is_main and best_on != val_id and math.isfinite(best):
+        # A best score on other validation data must not block the new data's best.pt.
+        print(
+            f"validation data differ from the resumed run's: best {best:.4f} forgotten",
+            file=sys.stderr,
+        )
+        best = math.inf
     if ctx.is_main:
         files.write_config(config)
         files.start_log(start_step)
@@ -348,7 +358,7 @@ def _train(
                         better = val["val_median_rel"] < best
                         best = min(best, val["val_median_rel"])
                         _checkpoint(files, model, config, spec, kwargs, optimizer, scheduler, step,
-                                    best, time.monotonic() - t0, val, better)  # fmt: skip
+                                    (best, val_id), time.monotonic() - t0, val, better)  # fmt: skip
                     distributed.barrier(ctx)
             if row and ctx.is_main:
                 row.setdefault("step", step)
@@ -388,11 +398,13 @@ def _checkpoint(
     optimizer: torch.optim.Optimizer,
     scheduler: Any,
     step: int,
-    best: float,
+    best: tuple[float, str],
     elapsed_s: float,
     val: dict[str, float],
     better: bool,
 ) -> None:
+    """Write last.pt (and best.pt when ``better``) and resume.pt; ``best`` is (the lowest
+    validation median relative error, the :func:`windows_fingerprint` it was measured on)."""
     extra = {"config": config.as_dict(), "step": step, "metrics": val, "elapsed_s": elapsed_s}
     save = functools.partial(
         save_checkpoint, model=model, name=config.model, model_kwargs=kwargs,
@@ -403,7 +415,8 @@ def _checkpoint(
         save(files.best)
     state = {
         "step": step,
-        "best": best,
+        "best": best[0],
+        "best_on": best[1],
         "elapsed_s": elapsed_s,
         "optimizer": optimizer.state_dict(),
         "scheduler": scheduler.state_dict(),
@@ -415,7 +428,7 @@ def _checkpoint(
 
 def _load_resume(
     files: RunFiles, model: nn.Module, optimizer, scheduler, ctx: distributed.DistContext
-) -> tuple[int, float, float]:
+) -> tuple[int, float, float, str]:
     if not (files.last.exists() and files.resume.exists()):
         raise InputError(f"{files.dir}: nothing to resume (needs last.pt and {RESUME_FILE}).")
     payload = torch.load(files.last, map_location=ctx.device, weights_only=False)
@@ -424,7 +437,8 @@ def _load_resume(
     optimizer.load_state_dict(state["optimizer"])
     scheduler.load_state_dict(state["scheduler"])
     set_rng_states(state["rng"])
-    return int(state["step"]), float(state["best"]), float(state["elapsed_s"])
+    best_on = str(state.get("best_on", ""))  # runs saved before fingerprints: unknown data
+    return int(state["step"]), float(state["best"]), float(state["elapsed_s"]), best_on
 
 
 def _load_init(model: nn.Module, config: TrainConfig) -> None:
