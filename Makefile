@@ -6,7 +6,7 @@ TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install test test-slow lint demo bench clean
+.PHONY: install test test-slow lint demo demo-finetune bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -29,9 +29,17 @@ test-slow: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/spikegyro demo
 
+# The demo plus a few minutes of CPU fine-tuning of the shipped weights at full resolution.
+demo-finetune: $(STAMP)
+	$(BIN)/spikegyro demo --finetune-minutes 5
+
+# The CPU benchmarks that run on their own; gpu_step.py (CUDA), nir_snntorch.py and
+# roll_readout.py (datasets to pass) are run with the commands in BENCHMARKS.md.
+CPU_BENCHES := simulator snn_step streaming cmax formats
+
 bench: $(STAMP)
 	$(BIN)/python -m pip install -q -e ".[test,bench]"
-	for b in bench/*.py; do $(BIN)/python $$b || exit 1; done
+	for b in $(CPU_BENCHES); do $(BIN)/python bench/$$b.py || exit 1; done
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache .ruff_cache
