@@ -24,18 +24,9 @@ import typer
 
 from spikegyro.errors import InputError
 from spikegyro.events.io import atomic_path
+from spikegyro.train.runfiles import LOG_FIELDS
 
-RELAY_FIELDS = (
-    "segment",
-    "step",
-    "loss",
-    "lr",
-    "val_loss",
-    "val_median_rel",
-    "val_mean_err_deg",
-    "elapsed_s",
-    "samples_per_s",
-)
+RELAY_FIELDS = ("segment", *LOG_FIELDS)
 STATE_FILES = ("last.pt", "resume.pt", "config.json", "log.csv")
 
 
