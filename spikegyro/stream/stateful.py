@@ -224,7 +224,7 @@ class StreamingSNN:
         self._w = np.concatenate(weights).astype(dtype)
         self._w_off = np.array(w_off, dtype=np.int64)
         self._tab = np.concatenate(tabs)
-        self._tab_off = np.concatenate([[0], np.cumsum([len(tab) for tab in tabs])]).astype(np.int64)
+        self._tab_off = np.cumsum([0] + [len(tab) for tab in tabs], dtype=np.int64)
         self._st_off = np.array(st_off, dtype=np.int64)
         self._pos_off = np.array(pos_off, dtype=np.int64)
         self._z_off = np.array(z_off, dtype=np.int64)
@@ -287,8 +287,8 @@ class StreamingSNN:
         """Steps ``s0..s1`` of this call through layers ``l0..l1`` (and the readout if last)."""
         _run_block(
             inp, offs, s0, s1, l0, l1, self._t, out, self._geo, self._par, self._klen, self._tab,
-            self._tab_off, self._w, self._w_off, self._state, self._st_off, self._z, self._z_off, self._last,
-            self._pos_off, self._ring, self._ring_off, self._ring_len, self._ring_cap,
+            self._tab_off, self._w, self._w_off, self._state, self._st_off, self._z, self._z_off,
+            self._last, self._pos_off, self._ring, self._ring_off, self._ring_len, self._ring_cap,
             self._ring_cnt, self._cnt_off, self._seen, self._fc, self._out_kernel, self._h,
             self.spike_counts, self._cycles,
         )  # fmt: skip
