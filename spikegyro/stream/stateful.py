@@ -396,7 +396,16 @@ def _scatter(
                             rd[co] += tail_d * col[co]
                 else:
                     last[p0 + pos] = t
-                    for jj in range(j, j_end):
+                    # two columns per pass over the target row: half the row's loads and stores
+                    jj = j
+                    while jj + 1 < j_end:
+                        wb = tap + (spikes[jj] - first_unit) * cout
+                        wb2 = tap + (spikes[jj + 1] - first_unit) * cout
+                        col, col2 = w[wb : wb + cout], w[wb2 : wb2 + cout]
+                        for co in range(cout):
+                            ra[co] += col[co] + col2[co]
+                        jj += 2
+                    if jj < j_end:
                         wb = tap + (spikes[jj] - first_unit) * cout
                         col = w[wb : wb + cout]
                         for co in range(cout):
