@@ -128,15 +128,25 @@ def fit_exp_kernel(kernel: np.ndarray, name: str = "refractory kernel") -> tuple
     return float(a), float(q)
 
 
+def _kx_order(kw: int, stride: int) -> np.ndarray:
+    """Order of the kernel columns in the engine's weights: by kx mod stride, then descending, so
+    that the columns ``kx, kx - stride, ...`` reaching the output pixels ``ox, ox + 1, ...``
+    from one input pixel are adjacent, like those pixels' states."""
+    return np.array(sorted(range(kw), key=lambda kx: (kx % stride, -kx)))
+
+
 def _target_table(hin: int, win: int, hout: int, wout: int, kh: int, kw: int,
                   stride: int) -> np.ndarray:
     """Where each input pixel's spikes land, precomputed (integer division is slow in the scatter):
     per input row the first and last output row whose window holds it (o * stride + k = i,
-    0 <= k < kh), then the same per input column; int64."""
+    0 <= k < kh), then the same per input column, then per input column the place in
+    :func:`_kx_order` of the kernel column that reaches the first of those; int64."""
     iy, ix = np.arange(hin), np.arange(win)
+    ox0 = np.maximum(0, (ix - kw + stride) // stride)
+    place = np.argsort(_kx_order(kw, stride))
     return np.concatenate([
         np.maximum(0, (iy - kh + stride) // stride), np.minimum(hout - 1, iy // stride),
-        np.maximum(0, (ix - kw + stride) // stride), np.minimum(wout - 1, ix // stride),
+        ox0, np.minimum(wout - 1, ix // stride), place[np.minimum(kw - 1, ix - ox0 * stride)],
     ]).astype(np.int64)  # fmt: skip
 
 
@@ -205,8 +215,10 @@ class StreamingSNN:
             # tail weights: A gets -p^L x[t-L], D gets -L p^L x[t-L], R gets -a q^(M-1) s[t-M]
             par[i] = (c, p, -(p**big_l), -big_l * p**big_l, a, q, -a * q ** (big_m - 1),
                       layer.theta)  # fmt: skip
-            # (ky, kx, cin, cout): the Cout weights one input unit sends to one pixel are adjacent
-            weights.append(np.ascontiguousarray(layer.weight.transpose(2, 3, 1, 0)).ravel())
+            # (ky, cin, kx in _kx_order, cout): the weights one input unit sends to a row of
+            # output pixels are adjacent
+            ordered = layer.weight[:, :, :, _kx_order(kw, layer.stride)]
+            weights.append(np.ascontiguousarray(ordered.transpose(2, 1, 3, 0)).ravel())
             w_off.append(w_off[-1] + weights[-1].size)
             st_off.append(st_off[-1] + cout * hout * wout)
             pos_off.append(pos_off[-1] + hout * wout)
@@ -376,40 +388,40 @@ def _scatter(
             j_end += 1
         iy = pix // win
         ix = pix - iy * win
-        oy0, oy1, ox0, ox1 = tab[iy], tab[hin + iy], tab[2 * hin + ix], tab[2 * hin + win + ix]
-        for oy in range(oy0, oy1 + 1):
+        oy0, oy1 = tab[iy], tab[hin + iy]
+        ox0, ox1, place = tab[2 * hin + ix], tab[2 * hin + win + ix], tab[2 * hin + 2 * win + ix]
+        # the targets of one output row are adjacent: one span of states, one span of weights
+        span = (ox1 - ox0 + 1) * cout
+        for oy in range(oy0, oy1 + 1 if span > 0 else oy0):
             ky = iy - oy * stride
-            for ox in range(ox0, ox1 + 1):
-                kx = ix - ox * stride
-                pos = oy * wout + ox
-                n0 = z0 + pos * cout
-                # contiguous views: the channel loop vectorises (no index wrap-around checks)
-                ra = za[n0 : n0 + cout]
-                tap = w0 + (ky * kw + kx) * cin * cout
-                if tail:
-                    rd = zd[n0 : n0 + cout]
-                    for jj in range(j, j_end):
-                        wb = tap + (spikes[jj] - first_unit) * cout
-                        col = w[wb : wb + cout]
-                        for co in range(cout):
-                            ra[co] += tail_a * col[co]
-                            rd[co] += tail_d * col[co]
-                else:
-                    last[p0 + pos] = t
-                    # two columns per pass over the target row: half the row's loads and stores
-                    jj = j
-                    while jj + 1 < j_end:
-                        wb = tap + (spikes[jj] - first_unit) * cout
-                        wb2 = tap + (spikes[jj + 1] - first_unit) * cout
-                        col, col2 = w[wb : wb + cout], w[wb2 : wb2 + cout]
-                        for co in range(cout):
-                            ra[co] += col[co] + col2[co]
-                        jj += 2
-                    if jj < j_end:
-                        wb = tap + (spikes[jj] - first_unit) * cout
-                        col = w[wb : wb + cout]
-                        for co in range(cout):
-                            ra[co] += col[co]
+            pos = oy * wout + ox0
+            n0 = z0 + pos * cout
+            # contiguous views: the channel loop vectorises (no index wrap-around checks)
+            ra = za[n0 : n0 + span]
+            tap = w0 + ((ky * cin - first_unit) * kw + place) * cout
+            if tail:
+                rd = zd[n0 : n0 + span]
+                for jj in range(j, j_end):
+                    wb = tap + spikes[jj] * kw * cout
+                    col = w[wb : wb + span]
+                    for co in range(span):
+                        ra[co] += tail_a * col[co]
+                        rd[co] += tail_d * col[co]
+            else:
+                last[p0 + pos : p0 + pos + ox1 - ox0 + 1] = t
+                # two columns per pass over the targets: half their loads and stores
+                jj = j
+                while jj + 1 < j_end:
+                    wb, wb2 = tap + spikes[jj] * kw * cout, tap + spikes[jj + 1] * kw * cout
+                    col, col2 = w[wb : wb + span], w[wb2 : wb2 + span]
+                    for co in range(span):
+                        ra[co] += col[co] + col2[co]
+                    jj += 2
+                if jj < j_end:
+                    wb = tap + spikes[jj] * kw * cout
+                    col = w[wb : wb + span]
+                    for co in range(span):
+                        ra[co] += col[co]
         j = j_end
 
 
