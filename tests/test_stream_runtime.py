@@ -23,7 +23,7 @@ from spikegyro.stream.model import (
     spec_cache_dir,
     spec_from_model,
 )
-from spikegyro.stream.stateful import PROFILE_KINDS, StreamingSNN
+from spikegyro.stream.stateful import PROFILE_KINDS, StreamingSNN, _kx_order, _target_table
 
 H, W, STEPS = 24, 32, 150
 
@@ -56,6 +56,26 @@ def test_one_step_calls_equal_one_long_call_for_any_block(spec, stream):
         engine = StreamingSNN(spec, block_steps=block)
         np.testing.assert_array_equal(engine.run(index, offsets), expected)
         np.testing.assert_array_equal(engine.spike_counts, reference.spike_counts)
+
+
+@pytest.mark.parametrize(("kh", "kw", "stride"), [(3, 3, 1), (3, 3, 2), (2, 5, 3), (5, 4, 2)])
+def test_scatter_tables_reach_exactly_the_windows_holding_each_input_pixel(kh, kw, stride):
+    hin, win = 13, 17
+    hout, wout = (hin - kh) // stride + 1, (win - kw) // stride + 1
+    tab = _target_table(hin, win, hout, wout, kh, kw, stride)
+    oy0, oy1, ox0, ox1, place = np.split(tab, np.cumsum([hin, hin, win, win]))
+    order = _kx_order(kw, stride)
+    assert sorted(order) == list(range(kw))
+    for i in range(hin):  # brute force: output rows o with o * stride <= i < o * stride + kh
+        assert list(range(oy0[i], oy1[i] + 1)) == [
+            o for o in range(hout) if 0 <= i - o * stride < kh
+        ]
+    for i in range(win):
+        reach = [o for o in range(wout) if 0 <= i - o * stride < kw]
+        assert list(range(ox0[i], ox1[i] + 1)) == reach
+        # the span of weights read for output pixels ox0.. holds their kernel columns, in order
+        span = order[place[i] : place[i] + len(reach)]
+        assert list(span) == [i - o * stride for o in reach]
 
 
 @pytest.mark.parametrize("block", [1, 4, 16])
