@@ -135,8 +135,9 @@ def _kx_order(kw: int, stride: int) -> np.ndarray:
     return np.array(sorted(range(kw), key=lambda kx: (kx % stride, -kx)))
 
 
-def _target_table(hin: int, win: int, hout: int, wout: int, kh: int, kw: int,
-                  stride: int) -> np.ndarray:
+def _target_table(
+    hin: int, win: int, hout: int, wout: int, kh: int, kw: int, stride: int
+) -> np.ndarray:
     """Where each input pixel's spikes land, precomputed (integer division is slow in the scatter):
     per input row the first and last output row whose window holds it (o * stride + k = i,
     0 <= k < kh), then the same per input column, then per input column the place in
@@ -347,6 +348,20 @@ def _rdtsc(typingctx):  # pragma: no cover
     return types.int64(), codegen
 
 
+@intrinsic
+def _cttz(typingctx, x):  # pragma: no cover
+    """Number of trailing zero bits of a uint64 (one instruction; 64 for 0)."""
+
+    def codegen(context, builder, signature, args):
+        i64 = ir.IntType(64)
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(i64, [i64, ir.IntType(1)]), "llvm.cttz.i64"
+        )
+        return builder.call(fn, [args[0], ir.Constant(ir.IntType(1), 0)])
+
+    return types.uint64(types.uint64), codegen
+
+
 @numba.njit(cache=True)
 def _cycles_now():  # pragma: no cover
     return _rdtsc()
@@ -366,9 +381,7 @@ def _cycle_rate() -> float:
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _scatter(
-    spikes, g, tab, w, w0, za, zd, z0, last, p0, t, tail_a, tail_d
-):  # pragma: no cover
+def _scatter(spikes, g, tab, w, w0, za, zd, z0, last, p0, t, tail_a, tail_d):  # pragma: no cover
     """Add ``W[:, ci, ky, kx]`` to ``za[z0 + pixel * Cout:]`` for each output pixel a spike reaches
     (``A`` or a map of the ring) and mark the pixel touched at ``t``; with ``tail_a`` != 0, add
     it scaled by ``tail_a`` to ``za`` and by ``tail_d`` to ``zd`` (``A`` and ``D``) instead: the
@@ -485,13 +498,17 @@ def _layer_pass(
             _advance(st, mask, n0, n1, par)
         else:
             _advance_ring(st, z, mask, n0, n1, zn + pos * cout, zo + pos * cout, par)
-        words = mask.view(np.uint64)  # spikes are sparse: test eight flags at a time
-        for k in range((n1 - n0 + 7) // 8):
-            if words[k]:
-                for i in range(8 * k, min(8 * k + 8, n1 - n0)):
-                    if mask[i]:
-                        out[n_spk] = n0 - s0 + i
-                        n_spk += 1
+        # spikes are sparse: eight flags (bytes 0/1) a word, set bits found by counting zeros
+        words = mask.view(np.uint64)
+        n_words, rest = (n1 - n0) // 8, (n1 - n0) % 8
+        for k in range(n_words + (rest > 0)):
+            word = words[k]
+            if k == n_words:  # flags past the run are stale
+                word &= (np.uint64(1) << np.uint64(8 * rest)) - np.uint64(1)
+            while word:
+                out[n_spk] = n0 - s0 + 8 * k + (_cttz(word) >> np.uint64(3))
+                n_spk += 1
+                word &= word - np.uint64(1)
         pos = end
     return n_spk
 
