@@ -116,9 +116,6 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--block-steps", type=int, default=16, help="engine block, ms")
     parser.add_argument(
-        "--band-kb", type=int, default=0, help="engine bands of output rows, kB of state (0: off)"
-    )
-    parser.add_argument(
         "--gain",
         type=float,
         default=INIT_GAIN,
@@ -138,9 +135,7 @@ def main() -> None:
         model = SNN6(init_gain=args.gain).eval()  # random weights scaled so every layer spikes
     spec = spec_from_model(model, (2, 180, 240))
     engines = {
-        threads: StreamingSNN(
-            spec, threads=threads, block_steps=args.block_steps, band_kb=args.band_kb
-        )
+        threads: StreamingSNN(spec, threads=threads, block_steps=args.block_steps)
         for threads in (1, 2)
     }
     exact = StreamingSNN(spec_from_model(model, (2, 180, 240), np.float64), np.float64)
@@ -152,7 +147,7 @@ def main() -> None:
     print(
         f"simulated {len(sequences)} test sequences of {args.duration_ms} ms at 240x180 "
         f"in {time.perf_counter() - t_sim:.1f} s; {os.cpu_count()} CPUs, load average "
-        f"{os.getloadavg()[0]:.1f}; block {args.block_steps} ms, bands {args.band_kb} kB; "
+        f"{os.getloadavg()[0]:.1f}; block {args.block_steps} ms; "
         + (args.checkpoint or f"random SNN-6 with init gain {args.gain}")
     )
     print(

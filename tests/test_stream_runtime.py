@@ -23,7 +23,7 @@ from spikegyro.stream.model import (
     spec_cache_dir,
     spec_from_model,
 )
-from spikegyro.stream.stateful import PROFILE_KINDS, StreamingSNN
+from spikegyro.stream.stateful import PROFILE_KINDS, StreamingSNN, _kx_order, _target_table
 
 H, W, STEPS = 24, 32, 150
 
@@ -47,17 +47,35 @@ def _calls(engine, index, offsets, cuts):
     return np.concatenate(outs)
 
 
-def test_one_step_calls_equal_one_long_call_for_any_block_and_band(spec, stream):
+def test_one_step_calls_equal_one_long_call_for_any_block(spec, stream):
     index, offsets = stream
     reference = StreamingSNN(spec, block_steps=1)
     expected = _calls(reference, index, offsets, list(range(1, STEPS)))  # one ms per call
     assert np.abs(expected).max() > 0 and reference.spike_counts.min() > 50
-    for block, band_kb in ((3, 0), (8, 0), (64, 0), (8, 1), (16, 4)):
-        # bands of one output row (1 kB), or of a few: layers run their rows in several passes
-        engine = StreamingSNN(spec, block_steps=block, band_kb=band_kb)
-        assert band_kb != 1 or (engine._klen[:, 3] == 1).all()
+    for block in (3, 8, 64):
+        engine = StreamingSNN(spec, block_steps=block)
         np.testing.assert_array_equal(engine.run(index, offsets), expected)
         np.testing.assert_array_equal(engine.spike_counts, reference.spike_counts)
+
+
+@pytest.mark.parametrize(("kh", "kw", "stride"), [(3, 3, 1), (3, 3, 2), (2, 5, 3), (5, 4, 2)])
+def test_scatter_tables_reach_exactly_the_windows_holding_each_input_pixel(kh, kw, stride):
+    hin, win = 13, 17
+    hout, wout = (hin - kh) // stride + 1, (win - kw) // stride + 1
+    tab = _target_table(hin, win, hout, wout, kh, kw, stride)
+    oy0, oy1, ox0, ox1, place = np.split(tab, np.cumsum([hin, hin, win, win]))
+    order = _kx_order(kw, stride)
+    assert sorted(order) == list(range(kw))
+    for i in range(hin):  # brute force: output rows o with o * stride <= i < o * stride + kh
+        assert list(range(oy0[i], oy1[i] + 1)) == [
+            o for o in range(hout) if 0 <= i - o * stride < kh
+        ]
+    for i in range(win):
+        reach = [o for o in range(wout) if 0 <= i - o * stride < kw]
+        assert list(range(ox0[i], ox1[i] + 1)) == reach
+        # the span of weights read for output pixels ox0.. holds their kernel columns, in order
+        span = order[place[i] : place[i] + len(reach)]
+        assert list(span) == [i - o * stride for o in reach]
 
 
 @pytest.mark.parametrize("block", [1, 4, 16])

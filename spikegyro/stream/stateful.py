@@ -128,6 +128,34 @@ def fit_exp_kernel(kernel: np.ndarray, name: str = "refractory kernel") -> tuple
     return float(a), float(q)
 
 
+def _kx_order(kw: int, stride: int) -> np.ndarray:
+    """Order of the kernel columns in the engine's weights: by kx mod stride, then descending, so
+    that the columns ``kx, kx - stride, ...`` reaching the output pixels ``ox, ox + 1, ...``
+    from one input pixel are adjacent, like those pixels' states."""
+    return np.array(sorted(range(kw), key=lambda kx: (kx % stride, -kx)))
+
+
+def _target_table(
+    hin: int, win: int, hout: int, wout: int, kh: int, kw: int, stride: int
+) -> np.ndarray:
+    """Where each input pixel's spikes land, precomputed (integer division is slow in the scatter):
+    per input row the first and last output row whose window holds it (o * stride + k = i,
+    0 <= k < kh), then the same per input column, then per input column the place in
+    :func:`_kx_order` of the kernel column that reaches the first of those; int64."""
+    iy, ix = np.arange(hin), np.arange(win)
+    ox0 = np.maximum(0, (ix - kw + stride) // stride)
+    place = np.argsort(_kx_order(kw, stride))
+    return np.concatenate([
+        np.maximum(0, (iy - kh + stride) // stride), np.minimum(hout - 1, iy // stride),
+        ox0, np.minimum(wout - 1, ix // stride), place[np.minimum(kw - 1, ix - ox0 * stride)],
+    ]).astype(np.int64)  # fmt: skip
+
+
+def _shift(n: int) -> int:
+    """log2(n) where n is a power of two (division becomes a shift), else -1."""
+    return n.bit_length() - 1 if n & (n - 1) == 0 else -1
+
+
 PROFILE_KINDS = ("scatter", "tail scatter", "feedback", "update")
 """Columns of :meth:`StreamingSNN.profile` for each layer (see the module docstring); its last
 row holds the input binning and the readout in its first two columns."""
@@ -153,8 +181,6 @@ class StreamingSNN:
         input_maps: per layer, keep the synaptic input as a ring of L + 1 maps (True) or scatter
             the input spikes a second time for the kernel's tail (False); default: maps where
             the input has more than 2 channels (a spike then reaches many weights).
-        band_kb: a layer runs the block in bands of output rows holding about this much state
-            (a band stays in the core's cache over the block); 0: whole layers.
     """
 
     def __init__(
@@ -164,7 +190,6 @@ class StreamingSNN:
         threads: int = 1,
         block_steps: int = 16,
         input_maps: tuple[bool, ...] | None = None,
-        band_kb: int = 0,
     ) -> None:
         if threads not in (1, 2) or block_steps < 1:
             raise ValueError(f"threads must be 1 or 2 and block_steps >= 1, got {threads}, "
@@ -172,27 +197,29 @@ class StreamingSNN:
         self.spec, self.threads, self.block_steps = spec, threads, block_steps
         shapes = [spec.input_shape, *spec.layer_shapes()]
         n_layers = len(spec.layers)
-        geo = np.zeros((n_layers, 8), dtype=np.int64)
+        geo = np.zeros((n_layers, 10), dtype=np.int64)
         par = np.zeros((n_layers, 8), dtype=np.float64)
-        klen = np.zeros((n_layers, 4), dtype=np.int64)  # L, M, input maps in a ring?, band rows
+        klen = np.zeros((n_layers, 3), dtype=np.int64)  # L, M, input maps in a ring?
         if input_maps is None:
             input_maps = tuple(shape[0] > 2 for shape in shapes[:-1])
-        weights, w_off, st_off, pos_off, z_off = [], [0], [0], [0], [0]
+        weights, tabs, w_off, st_off, pos_off, z_off = [], [], [0], [0], [0], [0]
         for i, layer in enumerate(spec.layers):
             (cin, hin, win), (cout, hout, wout) = shapes[i], shapes[i + 1]
             kh, kw = layer.weight.shape[2:]
             c, p = fit_alpha_kernel(layer.srm_kernel, f"layer {i + 1} srm kernel")
             a, q = fit_exp_kernel(layer.ref_kernel, f"layer {i + 1} refractory kernel")
             big_l, big_m = len(layer.srm_kernel), len(layer.ref_kernel)
-            row_bytes = wout * cout * 3 * np.dtype(dtype).itemsize
-            rows = max(1, band_kb * 1024 // row_bytes) if band_kb else hout
-            klen[i] = big_l, big_m, bool(input_maps[i]), rows
-            geo[i] = (cin, hin, win, cout, hout, wout, layer.stride, kh * 1000 + kw)
+            klen[i] = big_l, big_m, bool(input_maps[i])
+            geo[i] = (cin, hin, win, cout, hout, wout, layer.stride, kh * 1000 + kw, _shift(cin),
+                      _shift(cout))  # fmt: skip
+            tabs.append(_target_table(hin, win, hout, wout, kh, kw, layer.stride))
             # tail weights: A gets -p^L x[t-L], D gets -L p^L x[t-L], R gets -a q^(M-1) s[t-M]
             par[i] = (c, p, -(p**big_l), -big_l * p**big_l, a, q, -a * q ** (big_m - 1),
                       layer.theta)  # fmt: skip
-            # (ky, kx, cin, cout): the Cout weights one input unit sends to one pixel are adjacent
-            weights.append(np.ascontiguousarray(layer.weight.transpose(2, 3, 1, 0)).ravel())
+            # (ky, cin, kx in _kx_order, cout): the weights one input unit sends to a row of
+            # output pixels are adjacent
+            ordered = layer.weight[:, :, :, _kx_order(kw, layer.stride)]
+            weights.append(np.ascontiguousarray(ordered.transpose(2, 1, 3, 0)).ravel())
             w_off.append(w_off[-1] + weights[-1].size)
             st_off.append(st_off[-1] + cout * hout * wout)
             pos_off.append(pos_off[-1] + hout * wout)
@@ -209,6 +236,8 @@ class StreamingSNN:
         self._geo, self._par, self._klen = geo, par.astype(dtype), klen
         self._w = np.concatenate(weights).astype(dtype)
         self._w_off = np.array(w_off, dtype=np.int64)
+        self._tab = np.concatenate(tabs)
+        self._tab_off = np.cumsum([0] + [len(tab) for tab in tabs], dtype=np.int64)
         self._st_off = np.array(st_off, dtype=np.int64)
         self._pos_off = np.array(pos_off, dtype=np.int64)
         self._z_off = np.array(z_off, dtype=np.int64)
@@ -270,9 +299,9 @@ class StreamingSNN:
     def _block(self, inp, offs, out, s0: int, s1: int, l0: int, l1: int) -> None:
         """Steps ``s0..s1`` of this call through layers ``l0..l1`` (and the readout if last)."""
         _run_block(
-            inp, offs, s0, s1, l0, l1, self._t, out, self._geo, self._par, self._klen, self._w,
-            self._w_off, self._state, self._st_off, self._z, self._z_off, self._last,
-            self._pos_off, self._ring, self._ring_off, self._ring_len, self._ring_cap,
+            inp, offs, s0, s1, l0, l1, self._t, out, self._geo, self._par, self._klen, self._tab,
+            self._tab_off, self._w, self._w_off, self._state, self._st_off, self._z, self._z_off,
+            self._last, self._pos_off, self._ring, self._ring_off, self._ring_len, self._ring_cap,
             self._ring_cnt, self._cnt_off, self._seen, self._fc, self._out_kernel, self._h,
             self.spike_counts, self._cycles,
         )  # fmt: skip
@@ -319,6 +348,20 @@ def _rdtsc(typingctx):  # pragma: no cover
     return types.int64(), codegen
 
 
+@intrinsic
+def _cttz(typingctx, x):  # pragma: no cover
+    """Number of trailing zero bits of a uint64 (one instruction; 64 for 0)."""
+
+    def codegen(context, builder, signature, args):
+        i64 = ir.IntType(64)
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(i64, [i64, ir.IntType(1)]), "llvm.cttz.i64"
+        )
+        return builder.call(fn, [args[0], ir.Constant(ir.IntType(1), 0)])
+
+    return types.uint64(types.uint64), codegen
+
+
 @numba.njit(cache=True)
 def _cycles_now():  # pragma: no cover
     return _rdtsc()
@@ -338,56 +381,60 @@ def _cycle_rate() -> float:
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _scatter(
-    spikes, g, w, w0, za, zd, z0, last, p0, t, tail_a, tail_d, oy_a, oy_b
-):  # pragma: no cover
+def _scatter(spikes, g, tab, w, w0, za, zd, z0, last, p0, t, tail_a, tail_d):  # pragma: no cover
     """Add ``W[:, ci, ky, kx]`` to ``za[z0 + pixel * Cout:]`` for each output pixel a spike reaches
     (``A`` or a map of the ring) and mark the pixel touched at ``t``; with ``tail_a`` != 0, add
     it scaled by ``tail_a`` to ``za`` and by ``tail_d`` to ``zd`` (``A`` and ``D``) instead: the
-    kernel's truncation, L steps later, when the pixel is still live. Only output rows
-    ``oy_a..oy_b`` are written."""
-    cin, win, cout, wout, stride, kk = g[0], g[2], g[3], g[5], g[6], g[7]
-    kh, kw = kk // 1000, kk % 1000
+    kernel's truncation, L steps later, when the pixel is still live. ``tab``: the layer's
+    :func:`_target_table`."""
+    cin, hin, win, cout, wout, stride, kw = g[0], g[1], g[2], g[3], g[5], g[6], g[7] % 1000
+    cin_shift = g[8]
     tail = tail_a != 0.0
     n_spikes = spikes.shape[0]
     j = 0
     while j < n_spikes:
         # spikes of one input pixel (adjacent in the lists layers emit) share their targets
-        pix = spikes[j] // cin
+        pix = spikes[j] >> cin_shift if cin_shift >= 0 else spikes[j] // cin
         first_unit = pix * cin
         j_end = j + 1
         while j_end < n_spikes and first_unit <= spikes[j_end] < first_unit + cin:
             j_end += 1
         iy = pix // win
         ix = pix - iy * win
-        # the output pixels whose window holds (iy, ix): o * stride + k = i with 0 <= k < kh
-        # (ranges computed once per pixel: integer division is slow in the inner loops)
-        oy0, oy1 = max(oy_a, (iy - kh + stride) // stride), min(oy_b - 1, iy // stride)
-        ox0, ox1 = max(0, (ix - kw + stride) // stride), min(wout - 1, ix // stride)
-        for oy in range(oy0, oy1 + 1):
+        oy0, oy1 = tab[iy], tab[hin + iy]
+        ox0, ox1, place = tab[2 * hin + ix], tab[2 * hin + win + ix], tab[2 * hin + 2 * win + ix]
+        # the targets of one output row are adjacent: one span of states, one span of weights
+        span = (ox1 - ox0 + 1) * cout
+        for oy in range(oy0, oy1 + 1 if span > 0 else oy0):
             ky = iy - oy * stride
-            for ox in range(ox0, ox1 + 1):
-                kx = ix - ox * stride
-                pos = oy * wout + ox
-                n0 = z0 + pos * cout
-                # contiguous views: the channel loop vectorises (no index wrap-around checks)
-                ra = za[n0 : n0 + cout]
-                tap = w0 + (ky * kw + kx) * cin * cout
-                if tail:
-                    rd = zd[n0 : n0 + cout]
-                    for jj in range(j, j_end):
-                        wb = tap + (spikes[jj] - first_unit) * cout
-                        col = w[wb : wb + cout]
-                        for co in range(cout):
-                            ra[co] += tail_a * col[co]
-                            rd[co] += tail_d * col[co]
-                else:
-                    last[p0 + pos] = t
-                    for jj in range(j, j_end):
-                        wb = tap + (spikes[jj] - first_unit) * cout
-                        col = w[wb : wb + cout]
-                        for co in range(cout):
-                            ra[co] += col[co]
+            pos = oy * wout + ox0
+            n0 = z0 + pos * cout
+            # contiguous views: the channel loop vectorises (no index wrap-around checks)
+            ra = za[n0 : n0 + span]
+            tap = w0 + ((ky * cin - first_unit) * kw + place) * cout
+            if tail:
+                rd = zd[n0 : n0 + span]
+                for jj in range(j, j_end):
+                    wb = tap + spikes[jj] * kw * cout
+                    col = w[wb : wb + span]
+                    for co in range(span):
+                        ra[co] += tail_a * col[co]
+                        rd[co] += tail_d * col[co]
+            else:
+                last[p0 + pos : p0 + pos + ox1 - ox0 + 1] = t
+                # two columns per pass over the targets: half their loads and stores
+                jj = j
+                while jj + 1 < j_end:
+                    wb, wb2 = tap + spikes[jj] * kw * cout, tap + spikes[jj + 1] * kw * cout
+                    col, col2 = w[wb : wb + span], w[wb2 : wb2 + span]
+                    for co in range(span):
+                        ra[co] += col[co] + col2[co]
+                    jj += 2
+                if jj < j_end:
+                    wb = tap + spikes[jj] * kw * cout
+                    col = w[wb : wb + span]
+                    for co in range(span):
+                        ra[co] += col[co]
         j = j_end
 
 
@@ -451,28 +498,32 @@ def _layer_pass(
             _advance(st, mask, n0, n1, par)
         else:
             _advance_ring(st, z, mask, n0, n1, zn + pos * cout, zo + pos * cout, par)
-        words = mask.view(np.uint64)  # spikes are sparse: test eight flags at a time
-        for k in range((n1 - n0 + 7) // 8):
-            if words[k]:
-                for i in range(8 * k, min(8 * k + 8, n1 - n0)):
-                    if mask[i]:
-                        out[n_spk] = n0 - s0 + i
-                        n_spk += 1
+        # spikes are sparse: eight flags (bytes 0/1) a word, set bits found by counting zeros
+        words = mask.view(np.uint64)
+        n_words, rest = (n1 - n0) // 8, (n1 - n0) % 8
+        for k in range(n_words + (rest > 0)):
+            word = words[k]
+            if k == n_words:  # flags past the run are stale
+                word &= (np.uint64(1) << np.uint64(8 * rest)) - np.uint64(1)
+            while word:
+                out[n_spk] = n0 - s0 + 8 * k + (_cttz(word) >> np.uint64(3))
+                n_spk += 1
+                word &= word - np.uint64(1)
         pos = end
     return n_spk
 
 
 @numba.njit(cache=True, nogil=True)
-def _spike_range(ring, off, length, cap, ring_cnt, cnt_off, t, lo, hi):  # pragma: no cover
-    """The part of step ``t``'s (sorted) spike list in ``[lo, hi)``, as a view."""
+def _spikes(ring, off, length, cap, ring_cnt, cnt_off, t):  # pragma: no cover
+    """Step ``t``'s spike list of a ring, as a view."""
     base = off + (t % length) * cap
-    spikes = ring[base : base + ring_cnt[cnt_off + t % length]]
-    return spikes[np.searchsorted(spikes, lo) : np.searchsorted(spikes, hi)]
+    return ring[base : base + ring_cnt[cnt_off + t % length]]
 
 
 @numba.njit(cache=True, nogil=True)
 def _run_block(  # pragma: no cover
-    inp, offs, s_begin, s_end, l0, l1, t_base, out, geo, par, klen, w, w_off, st, st_off, z,
+    inp, offs, s_begin, s_end, l0, l1, t_base, out, geo, par, klen, tab, tab_off, w, w_off, st,
+    st_off, z,
     z_off, last, pos_off, ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off, seen, fc, kout,
     hring, spike_counts, cycles,
 ):  # fmt: skip
@@ -482,7 +533,8 @@ def _run_block(  # pragma: no cover
     lo = kout.shape[0]
     # layer by layer over the block, so that a layer's state and weights stay in cache
     for s in range(s_begin, s_end if l0 == 0 else s_begin):
-        # input events of this step, deduplicated (the input is binary), into ring 0
+        # input events of this step, deduplicated (the input is binary), into ring 0 in arrival
+        # order (sorting them cost more than the locality it bought the layer-1 scatter)
         t = t_base + s
         c0 = _rdtsc()
         r0 = ring_off[0] + (t % ring_len[0]) * ring_cap[0]
@@ -493,70 +545,57 @@ def _run_block(  # pragma: no cover
                 seen[idx] = t
                 ring[r0 + m] = idx
                 m += 1
-        ring[r0 : r0 + m].sort()  # ordered like the lists layers emit, for bands and grouping
         ring_cnt[cnt_off[0] + t % ring_len[0]] = m
         cycles[n_layers, 0] += _rdtsc() - c0
     for li in range(l0, l1):
         g = geo[li]
-        cin, win, cout, hout, wout, stride, kh = g[0], g[2], g[3], g[4], g[5], g[6], g[7] // 1000
+        cout, cout_shift = g[3], g[9]
         big_l, big_m = klen[li, 0], klen[li, 1]
         s0, p0 = st_off[li], pos_off[li]
-        n_neurons = hout * wout * cout
-        # bands of output rows, each run over the whole block while its state stays in cache
-        for oy_a in range(0, hout, klen[li, 3]):
-            oy_b = min(hout, oy_a + klen[li, 3])
-            in_lo = oy_a * stride * win * cin  # input units whose 3x3 window reaches the band
-            in_hi = min(g[1], (oy_b - 1) * stride + kh) * win * cin
-            own_lo, own_hi = oy_a * wout * cout, oy_b * wout * cout
-            for s in range(s_begin, s_end):
-                t = t_base + s
-                c0 = _rdtsc()
-                spikes = _spike_range(ring, ring_off[li], ring_len[li], ring_cap[li], ring_cnt,
-                                      cnt_off[li], t, in_lo, in_hi)  # fmt: skip
-                if klen[li, 2]:  # synaptic input into map t of the ring, read back L steps later
-                    zn = z_off[li] + (t % (big_l + 1)) * n_neurons
-                    zo = z_off[li] + ((t + 1) % (big_l + 1)) * n_neurons
-                    _scatter(spikes, g, w, w_off[li], z, z, zn, last, p0, t, 0.0, 0.0, oy_a, oy_b)
-                else:
-                    zn = zo = -1
-                    _scatter(spikes, g, w, w_off[li], st[0], st[1], s0, last, p0, t, 0.0, 0.0,
-                             oy_a, oy_b)  # fmt: skip
-                c1 = _rdtsc()
-                cycles[li, 0] += c1 - c0
-                if zn < 0 and t >= big_l:  # the same spikes L steps later, with the tail weights
-                    spikes = _spike_range(ring, ring_off[li], ring_len[li], ring_cap[li],
-                                          ring_cnt, cnt_off[li], t - big_l, in_lo,
-                                          in_hi)  # fmt: skip
-                    _scatter(spikes, g, w, w_off[li], st[0], st[1], s0, last, p0, t, par[li, 2],
-                             par[li, 3], oy_a, oy_b)  # fmt: skip
-                c2 = _rdtsc()
-                cycles[li, 1] += c2 - c1
-                # refractory feedback of this layer's own spikes, one step and M steps ago
-                for lag in (1, big_m):
-                    if t >= lag:
-                        amp = par[li, 4] if lag == 1 else par[li, 6]
-                        own = _spike_range(ring, ring_off[li + 1], ring_len[li + 1],
-                                           ring_cap[li + 1], ring_cnt, cnt_off[li + 1], t - lag,
-                                           own_lo, own_hi)  # fmt: skip
-                        for n in own:
-                            st[2, s0 + n] += amp
-                            if lag == 1:
-                                last[p0 + n // cout] = t
-                c3 = _rdtsc()
-                cycles[li, 2] += c3 - c2
-                # this band's spikes follow those of the bands above in step t's list
-                cnt = cnt_off[li + 1] + t % ring_len[li + 1]
-                if oy_a == 0:
-                    ring_cnt[cnt] = 0
-                obase = ring_off[li + 1] + (t % ring_len[li + 1]) * ring_cap[li + 1]
-                n_spk = _layer_pass(
-                    st, s0, z, zn, zo, last, p0, oy_a * wout, oy_b * wout, cout, t,
-                    max(big_l, big_m) + 1, par[li], mask,
-                    ring[obase + ring_cnt[cnt] : obase + ring_cap[li + 1]],
-                )  # fmt: skip
-                ring_cnt[cnt] += n_spk
-                spike_counts[li] += n_spk
-                cycles[li, 3] += _rdtsc() - c3
+        n_neurons = g[4] * g[5] * cout
+        tb = tab[tab_off[li] : tab_off[li + 1]]
+        for s in range(s_begin, s_end):
+            t = t_base + s
+            c0 = _rdtsc()
+            spikes = _spikes(ring, ring_off[li], ring_len[li], ring_cap[li], ring_cnt, cnt_off[li],
+                             t)  # fmt: skip
+            if klen[li, 2]:  # synaptic input into map t of the ring, read back L steps later
+                zn = z_off[li] + (t % (big_l + 1)) * n_neurons
+                zo = z_off[li] + ((t + 1) % (big_l + 1)) * n_neurons
+                _scatter(spikes, g, tb, w, w_off[li], z, z, zn, last, p0, t, 0.0, 0.0)
+            else:
+                zn = zo = -1
+                _scatter(spikes, g, tb, w, w_off[li], st[0], st[1], s0, last, p0, t, 0.0, 0.0)
+            c1 = _rdtsc()
+            cycles[li, 0] += c1 - c0
+            if zn < 0 and t >= big_l:  # the same spikes L steps later, with the tail weights
+                spikes = _spikes(ring, ring_off[li], ring_len[li], ring_cap[li], ring_cnt,
+                                 cnt_off[li], t - big_l)  # fmt: skip
+                _scatter(spikes, g, tb, w, w_off[li], st[0], st[1], s0, last, p0, t, par[li, 2],
+                         par[li, 3])  # fmt: skip
+            c2 = _rdtsc()
+            cycles[li, 1] += c2 - c1
+            # refractory feedback of this layer's own spikes, one step and M steps ago
+            for lag in (1, big_m):
+                if t >= lag:
+                    amp = par[li, 4] if lag == 1 else par[li, 6]
+                    own = _spikes(ring, ring_off[li + 1], ring_len[li + 1], ring_cap[li + 1],
+                                  ring_cnt, cnt_off[li + 1], t - lag)  # fmt: skip
+                    for n in own:
+                        st[2, s0 + n] += amp
+                        if lag == 1:
+                            last[p0 + (n >> cout_shift if cout_shift >= 0 else n // cout)] = t
+            c3 = _rdtsc()
+            cycles[li, 2] += c3 - c2
+            cnt = cnt_off[li + 1] + t % ring_len[li + 1]
+            obase = ring_off[li + 1] + (t % ring_len[li + 1]) * ring_cap[li + 1]
+            n_spk = _layer_pass(
+                st, s0, z, zn, zo, last, p0, 0, g[4] * g[5], cout, t, max(big_l, big_m) + 1,
+                par[li], mask, ring[obase : obase + ring_cap[li + 1]],
+            )  # fmt: skip
+            ring_cnt[cnt] = n_spk
+            spike_counts[li] += n_spk
+            cycles[li, 3] += _rdtsc() - c3
     for s in range(s_begin, s_end if l1 == n_layers else s_begin):
         t = t_base + s
         # -- readout: global average of the last layer's spikes -> dense -> psp (exact FIR)
