@@ -164,8 +164,9 @@ def _stream_recording(config: DemoConfig, out: Path, console: Console) -> dict[s
         duration_ms=round(config.recording_s * 1000),
         trajectory=TrajectoryConfig(accel_std_deg=config.recording_accel_deg),
     )
-    recording = simulate_sequence(sim, 0, config.seed + 1, split="test")
-    path = write_recording(out / "recording.h5", recording)
+    with console.status(f"simulating a {config.recording_s:g} s recording (held-out scenes)"):
+        recording = simulate_sequence(sim, 0, config.seed + 1, split="test")
+        path = write_recording(out / "recording.h5", recording)
     engine, payload = load_streaming_model(PRETRAINED_SNN6, threads=config.workers)
     result = predict_stream(
         path, engine, payload.get("input", {}), out / "recording-pred.csv", gyro_path=path
