@@ -9,11 +9,11 @@ the formats' counter wrap-arounds), packets out of order, empty files, and damag
 from __future__ import annotations
 
 import struct
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from format_helpers import assert_events, cli_error
 
 from spikegyro.errors import InputError
 from spikegyro.events.imu import imu_rotation
@@ -28,31 +28,10 @@ def random_events(n: int, width: int, height: int, t0: int, span: int, seed: int
     return rng.integers(0, width, n), rng.integers(0, height, n), t, rng.integers(0, 2, n)
 
 
-def assert_events(rec_events, x, y, t, p) -> None:
-    order = np.argsort(t, kind="stable")
-    np.testing.assert_array_equal(rec_events.t, np.asarray(t)[order])
-    np.testing.assert_array_equal(rec_events.x, np.asarray(x)[order])
-    np.testing.assert_array_equal(rec_events.y, np.asarray(y)[order])
-    np.testing.assert_array_equal(rec_events.p, np.asarray(p)[order])
-
-
 def streamed(path: Path, chunk_events: int = 97, **kw):
     chunks = list(iter_event_chunks(path, chunk_events=chunk_events, **kw))
     assert all(len(c) <= chunk_events for c in chunks)
     return chunks
-
-
-def cli_error(monkeypatch, capsys, *args: str) -> str:
-    """Run the command line in-process; assert exit 2 with one line on stderr, and return it."""
-    from spikegyro import cli
-
-    monkeypatch.setattr(sys, "argv", ["spikegyro", *args])
-    with pytest.raises(SystemExit) as exit_info:
-        cli.main()
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err
-    assert err.strip().count("\n") == 0
-    return err
 
 
 # --- jAER AEDAT 2.0: big-endian (uint32 address, int32 timestamp) records -----------------------

@@ -12,6 +12,7 @@ import sys
 
 import numpy as np
 import pytest
+from format_helpers import assert_events, cli_error
 
 from spikegyro.errors import InputError
 from spikegyro.events import EventArray, GyroTrace, Recording, write_recording
@@ -26,24 +27,6 @@ def random_events(n: int, width: int, height: int, t0: int, span: int, seed: int
     rng = np.random.default_rng(seed)
     t = np.sort(rng.integers(t0, t0 + span, n))
     return rng.integers(0, width, n), rng.integers(0, height, n), t, rng.integers(0, 2, n)
-
-
-def assert_sorted_equal(ev: EventArray, x, y, t, p) -> None:
-    order = np.argsort(t, kind="stable")
-    for name, want in zip("xytp", (x, y, t, p), strict=True):
-        np.testing.assert_array_equal(getattr(ev, name), np.asarray(want)[order], err_msg=name)
-
-
-def cli_error(monkeypatch, capsys, *args: str) -> str:
-    from spikegyro import cli
-
-    monkeypatch.setattr(sys, "argv", ["spikegyro", *args])
-    with pytest.raises(SystemExit) as exit_info:
-        cli.main()
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err
-    assert err.strip().count("\n") == 0
-    return err
 
 
 # --- AEDAT 4 -------------------------------------------------------------------------------------
@@ -75,12 +58,12 @@ def test_aedat4_round_trip(tmp_path, monkeypatch, capsys):
     assert detect_format(path) == "aedat4"
     rec = read_recording(path, imu_to_camera=imu_rotation("y,-x,z"))
     assert rec.events.sensor_size == (346, 260)
-    assert_sorted_equal(rec.events, x, y, t, p)
+    assert_events(rec.events, x, y, t, p)
     np.testing.assert_array_equal(rec.gyro.t, gyro.t)
     np.testing.assert_allclose(rec.gyro.omega, np.tile([0.5, -0.5, 0.5], (400, 1)), rtol=1e-6)
     chunks = list(iter_event_chunks(path, chunk_events=500))
     assert max(len(c) for c in chunks) <= 500
-    assert_sorted_equal(EventArray.concatenate(chunks), x, y, t, p)
+    assert_events(EventArray.concatenate(chunks), x, y, t, p)
     empty = tmp_path / "empty.aedat4"
     write_aedat4(empty, [])
     assert len(read_recording(empty).events) == 0
@@ -158,9 +141,9 @@ def test_rosbag_round_trip(tmp_path, monkeypatch, capsys):
     rec = read_recording(path)
     assert rec.events.sensor_size == (240, 180)
     assert rec.attrs["events_topic"] == "/dvs/events"
-    assert_sorted_equal(rec.events, x, y, t, p)
+    assert_events(rec.events, x, y, t, p)
     chunks = list(iter_event_chunks(path, chunk_events=64))
-    assert_sorted_equal(EventArray.concatenate(chunks), x, y, t, p)
+    assert_events(EventArray.concatenate(chunks), x, y, t, p)
     gyro = read_gyro(path, imu_to_camera=imu_rotation("-x,-y,z"))
     np.testing.assert_array_equal(gyro.t, [s for s, _ in imu])
     np.testing.assert_allclose(gyro.omega, [(-0.1 * k, 0.2, 0.3) for k in range(10)])
@@ -186,7 +169,7 @@ def test_convert_between_our_formats_streams_exactly(tmp_path, monkeypatch, caps
         n_events, n_gyro = convert(previous, out, chunk_events=333)
         assert (n_events, n_gyro) == (5000, 500)
         back = read_recording(out)
-        assert_sorted_equal(back.events, x, y, t, p)
+        assert_events(back.events, x, y, t, p)
         np.testing.assert_array_equal(back.gyro.t, gyro.t)
         np.testing.assert_allclose(back.gyro.omega, gyro.omega, rtol=1e-8)
         previous = out
@@ -209,7 +192,7 @@ def test_convert_to_camera_formats(tmp_path, suffix):
     assert convert(src, out, chunk_events=1000) == (4000, 0)
     back = read_recording(out)
     assert back.events.sensor_size == (640, 480)
-    assert_sorted_equal(back.events, x, y, t, p)
+    assert_events(back.events, x, y, t, p)
 
 
 def test_ros2_bag_folder(tmp_path):
@@ -241,7 +224,7 @@ def test_ros2_bag_folder(tmp_path):
             )
             writer.write(conn, k + 1, store.serialize_cdr(msg, msg.__msgtype__))
     assert detect_format(path) == "rosbag"
-    assert_sorted_equal(read_recording(path).events, x, y, t, p)
+    assert_events(read_recording(path).events, x, y, t, p)
 
 
 @pytest.mark.parametrize("suffix", [".h5", ".npz"])
@@ -259,7 +242,7 @@ def test_convert_memory_does_not_grow_with_the_file(tmp_path, suffix):
             peaks.append(tracemalloc.get_traced_memory()[1])
         finally:
             tracemalloc.stop()
-        assert_sorted_equal(read_recording(tmp_path / f"out{n}{suffix}").events, x, y, t, p)
+        assert_events(read_recording(tmp_path / f"out{n}{suffix}").events, x, y, t, p)
     # Four times the events (5.2 MB of them in memory) leave the peak where it was.
     assert peaks[1] < 1.25 * peaks[0] + 100_000, peaks
     assert peaks[1] < 400_000 * 13 / 3
