@@ -7,7 +7,7 @@ import torch
 
 from spikegyro.errors import InputError
 from spikegyro.models.registry import build_model
-from spikegyro.models.snn6 import SNN6, grid_from_global
+from spikegyro.models.snn6 import SNN6, grid_state_from_global
 from spikegyro.snn.layers import GASP, RegionPool
 
 
@@ -27,10 +27,11 @@ def test_region_pool_matches_a_loop_over_cells() -> None:
 def test_grid_network_starts_as_the_global_one() -> None:
     torch.manual_seed(0)
     base = SNN6().eval()
-    grid = grid_from_global(base, (2, 2)).eval()  # 120x90 input: layer 5 is 4x2, cells 2x1
+    grid = build_model("snn6-grid", grid=(2, 2)).eval()  # 120x90: layer 5 is 4x2, cells 2x1
+    grid.load_state_dict(grid_state_from_global(base.state_dict(), (2, 2)))
     x = (torch.rand(1, 2, 90, 120, 30) < 0.05).float()
     with torch.no_grad():
         torch.testing.assert_close(grid(x), base(x), rtol=1e-5, atol=1e-6)
     assert isinstance(build_model("snn6-grid", grid=(2, 3)).pool, RegionPool)
     with pytest.raises(InputError, match="already pools"):
-        grid_from_global(grid, (2, 2))
+        grid_state_from_global(grid.state_dict(), (2, 2))

@@ -132,6 +132,20 @@ def test_run_writes_its_files_and_resumes_to_the_same_state(dataset, tmp_path):
     train(replace(init, val_every=1), progress=False)
     assert_same_weights(run / "last.pt", tmp_path / "c" / "last.pt")
 
+    # an snn6 checkpoint starts an snn6-grid run with the readout spread over the cells
+    grid = tiny_config(dataset, tmp_path / "g", model="snn6-grid", model_kwargs={"grid": [1, 2]},
+                       init=str(run / "last.pt"), lr=0.0, iterations=1, val_every=1)  # fmt: skip
+    train(grid, progress=False)
+    _, base = load_checkpoint(run / "last.pt")
+    _, tiled = load_checkpoint(tmp_path / "g" / "last.pt")
+    torch.testing.assert_close(
+        tiled["state_dict"]["conv5.weight"], base["state_dict"]["conv5.weight"]
+    )
+    torch.testing.assert_close(
+        tiled["state_dict"]["fc.weight"],
+        base["state_dict"]["fc.weight"].repeat_interleave(2, 1) / 2,
+    )
+
 
 def test_event_data_path_trains_exactly_like_the_dense_path(dataset, tmp_path):
     """Event lists binned by the loop give the same batches, so the same weights, bit for bit."""

@@ -178,18 +178,17 @@ def snn6_grid(
     return SNN6(in_channels, init_gain, readout_grid=grid)
 
 
-def grid_from_global(model: SNN6, grid: tuple[int, int]) -> SNN6:
-    """An ``snn6-grid`` network that computes exactly what the GASP network ``model`` does.
+def grid_state_from_global(
+    state: dict[str, torch.Tensor], grid: tuple[int, int]
+) -> dict[str, torch.Tensor]:
+    """The state dict of an ``snn6-grid`` network that computes exactly what the GASP network
+    with ``state`` does: the start point for training the grid readout (``train --init``).
 
-    The conv weights are copied; each cell's readout weights are the global ones divided by the
+    The conv weights are kept; each cell's readout weights are the global ones divided by the
     number of cells, so when the cells are equal in size (a grid dividing the layer-5 map) the
-    sum over cells is the global mean. The start point for fine-tuning the grid readout.
+    sum over cells is the global mean.
     """
-    if model.readout_grid != (1, 1):
-        raise InputError(f"grid_from_global: the model already pools on {model.readout_grid}.")
-    out = snn6_grid(model.in_channels, grid=grid)
-    state = model.state_dict()
+    if state["fc.weight"].shape[1] != SNN6_LAYERS[-1].out_channels:
+        raise InputError("grid_state_from_global: the network already pools on a grid.")
     cells = grid[0] * grid[1]
-    state["fc.weight"] = state["fc.weight"].repeat_interleave(cells, dim=1) / cells
-    out.load_state_dict(state)
-    return out
+    return {**state, "fc.weight": state["fc.weight"].repeat_interleave(cells, dim=1) / cells}

@@ -53,7 +53,7 @@ def train_command(
     online: bool = typer.Option(
         None, "--online/--no-online", help="Simulate fresh training sequences on the fly."
     ),
-    model: str = typer.Option(None, help="snn6, ann6 or resnet50."),
+    model: str = typer.Option(None, help="snn6, snn6-grid, ann6 or resnet50."),
     input: str = typer.Option(None, "--input", help="spikes (SNN), voxel or frames (ANNs)."),
     model_kwargs: str = typer.Option(None, help="Model constructor arguments as JSON."),
     init: Path = typer.Option(None, "--init", help="Start from this checkpoint's weights."),

@@ -31,6 +31,7 @@ from torch.utils.data import DataLoader, Sampler
 from spikegyro.errors import InputError
 from spikegyro.events.io import atomic_path
 from spikegyro.models.registry import build_model, read_checkpoint, save_checkpoint
+from spikegyro.models.snn6 import grid_state_from_global
 from spikegyro.train import distributed
 from spikegyro.train.augment import AugmentConfig
 from spikegyro.train.data import (
@@ -443,12 +444,15 @@ def _load_resume(
 
 def _load_init(model: nn.Module, config: TrainConfig) -> None:
     payload = read_checkpoint(config.init)
-    if payload["model"] != config.model:
+    state = payload["state_dict"]
+    if (payload["model"], config.model) == ("snn6", "snn6-grid"):
+        state = grid_state_from_global(state, model.readout_grid)
+    elif payload["model"] != config.model:
         raise InputError(
             f"--init {config.init}: a '{payload['model']}' checkpoint cannot start a "
             f"'{config.model}' run."
         )
     try:
-        model.load_state_dict(payload["state_dict"])
+        model.load_state_dict(state)
     except RuntimeError as exc:
         raise InputError(f"--init {config.init}: weights do not fit ({exc}).") from None

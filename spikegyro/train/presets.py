@@ -15,7 +15,7 @@ from typing import Any
 from spikegyro.errors import InputError
 from spikegyro.train.data import DATA_PATHS
 
-MODEL_INPUTS = {"snn6": "spikes", "ann6": "voxel", "resnet50": "voxel"}
+MODEL_INPUTS = {"snn6": "spikes", "snn6-grid": "spikes", "ann6": "voxel", "resnet50": "voxel"}
 
 
 @dataclass(frozen=True)
@@ -116,7 +116,7 @@ class TrainConfig:
             raise InputError(f"--model {self.model}: choose one of {', '.join(MODEL_INPUTS)}.")
         if not self.input:
             object.__setattr__(self, "input", MODEL_INPUTS[self.model])
-        if (self.input == "spikes") != (self.model == "snn6"):
+        if (self.input == "spikes") != (MODEL_INPUTS[self.model] == "spikes"):
             raise InputError(
                 f"--model {self.model} with --input {self.input}: the SNN takes spikes, the "
                 "ANNs take voxel or frames."
