@@ -96,7 +96,15 @@ def test_fused_surrogate_backward_matches_rho_times_grad(kernels):
 
 
 def test_snn6_step_through_the_fused_kernels_matches_the_reference(kernels, monkeypatch):
-    """Forward output exactly, gradients of every layer within float rounding."""
+    """Forward output exactly, gradients of every layer within float rounding.
+
+    On a GPU, cuDNN's weight gradients sum in a run-dependent order and ``tl.exp`` may be
+    ex2.approx, so gradients are compared by their relative norm, the size float rounding
+    accumulated over six layers' backward gives, not element by element.
+    """
+    if DEVICE == "cuda":
+        monkeypatch.setattr(torch.backends.cudnn, "deterministic", True)
+        monkeypatch.setattr(torch.backends.cudnn, "benchmark", False)
     torch.manual_seed(0)
     model = SNN6().to(DEVICE)
     x = (torch.rand(2, 2, 64, 64, 16, device=DEVICE) < 0.1).float()
@@ -114,7 +122,8 @@ def test_snn6_step_through_the_fused_kernels_matches_the_reference(kernels, monk
     assert torch.equal(got[0], expected[0])
     assert [float(s) for s in got[1]] == [float(s) for s in expected[1]]
     for g, e in zip(got[2], expected[2], strict=True):
-        torch.testing.assert_close(g, e, rtol=1e-4, atol=1e-6)
+        assert float(e.norm()) > 0
+        assert float((g - e).norm()) <= 1e-4 * float(e.norm())
 
 
 def test_torch_code_runs_where_triton_is_not_asked_for(monkeypatch):

@@ -308,6 +308,11 @@ def test_cli_trains_overrides_options_and_resumes(dataset, tmp_path):
     result = runner.invoke(app, more, catch_exceptions=False)
     assert result.exit_code == 0, result.output
     assert torch.load(out / "resume.pt", weights_only=False)["step"] == 4
+    spent = ["train", "--resume", "--out", str(out), "--iterations", "6", "--max-minutes", "1e-6"]
+    before = (out / "log.csv").read_text()
+    refused = runner.invoke(app, spent)
+    assert refused.exit_code != 0 and "counts the whole run" in str(refused.exception)
+    assert (out / "log.csv").read_text() == before  # nothing half-written
 
 
 def test_config_errors_are_user_errors(tmp_path):

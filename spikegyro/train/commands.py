@@ -75,7 +75,9 @@ def train_command(
     warmup_steps: int = typer.Option(None, help="Linear learning-rate warm-up steps."),
     grad_clip: float = typer.Option(None, help="Max gradient norm (0 = off)."),
     iterations: int = typer.Option(None, help="Optimizer steps."),
-    max_minutes: float = typer.Option(None, help="Stop gracefully after this many minutes."),
+    max_minutes: float = typer.Option(
+        None, help="Stop gracefully once the run has trained this long, resumed minutes included."
+    ),
     hflip: float = typer.Option(None, help="Probability of a horizontal flip."),
     vflip: float = typer.Option(None, help="Probability of a vertical flip."),
     time_reverse: float = typer.Option(None, help="Probability of time inversion."),

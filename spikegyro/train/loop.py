@@ -48,7 +48,13 @@ from spikegyro.train.data import (
 )
 from spikegyro.train.infer import predict_windows
 from spikegyro.train.presets import TrainConfig, load_config
-from spikegyro.train.runfiles import RESUME_FILE, ProgressBar, RunFiles, tensorboard
+from spikegyro.train.runfiles import (
+    RESUME_FILE,
+    ProgressBar,
+    RunFiles,
+    check_time_budget,
+    tensorboard,
+)
 from spikegyro.train.throughput import BareStep, RunClock, bare_step_rate, train_step
 
 
@@ -288,6 +294,7 @@ def _train(
     start_step, best, elapsed0, best_on = 0, math.inf, 0.0, ""
     if resume:
         start_step, best, elapsed0, best_on = _load_resume(files, model, optimizer, scheduler, ctx)
+        check_time_budget(config.max_minutes, elapsed0)
     net: nn.Module = model
     if ctx.distributed:
         ids = [ctx.device.index] if ctx.device.type == "cuda" else None

@@ -30,6 +30,20 @@ LOG_FIELDS = (
 RESUME_FILE = "resume.pt"
 
 
+def check_time_budget(max_minutes: float, elapsed_s: float) -> None:
+    """Refuse a resume whose ``--max-minutes`` the run has already spent.
+
+    The budget counts the whole run, resumed time included (as ``--iterations`` counts all
+    steps), so resuming a 35-minute run with ``--max-minutes 6`` would stop at once.
+    """
+    if 0 < max_minutes * 60 <= elapsed_s:
+        spent = elapsed_s / 60
+        raise InputError(
+            f"--max-minutes {max_minutes:g} counts the whole run, which has trained {spent:.1f} "
+            f"min already: pass {spent + max_minutes:.1f} for {max_minutes:g} more minutes."
+        )
+
+
 # ------------------------------------------------------------------------------- run files
 
 

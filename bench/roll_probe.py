@@ -1,0 +1,174 @@
+"""Which input statistic does SNN-6's roll estimate hang on? (DESIGN.md, "Why roll is hard").
+
+Runs a checkpoint on simulated test windows, each time changing one statistic in which the real
+sparse recordings differ from the simulator's, and prints per-axis mean absolute errors:
+
+- ``all``: the windows as simulated (the reference row);
+- ``thinned K``: a random share K of the events kept (density alone: the real ``shapes`` window
+  has about a third of a median simulated window's events);
+- ``centre F``: only events inside a centred box of F times each side (spatial extent alone:
+  a few shapes in the middle of the view, no events near the image border);
+- ``periphery F``: only events outside that box.
+
+If roll degrades with ``centre`` far more than tilt and pan do, and not with ``thinned``, the
+network reads roll from where events fall across the whole view (flow that turns with position,
+or the conv layers' zero padding at the border), and a readout that keeps position should help.
+
+Real windows with a reference (``EVENTS:CALIB:GYRO``; CALIB may be ``fx,fy,cx,cy``) are run as
+recorded and through the symmetries the network was trained with (left-right and up-down mirror,
+time reversal), each prediction mapped back to the original frame. An equivariant network
+gives the same mean each time; the spread says how much of an estimate is bias, not evidence.
+
+    python bench/roll_probe.py --data DIR [--checkpoint PT] [--windows 100] [--real SPEC ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+from roll_readout import START, scores
+
+from spikegyro.events.calib import resolve_calibration
+from spikegyro.events.io import read_gyro, read_recording
+from spikegyro.models.registry import PRETRAINED_SNN6, load_checkpoint
+from spikegyro.stream.predict import event_mapper
+from spikegyro.train.augment import (
+    HORIZONTAL_MIRROR,
+    VERTICAL_MIRROR,
+    flip_horizontal,
+    flip_vertical,
+    mirror_omega,
+    reverse_time,
+    thin,
+)
+from spikegyro.train.data import Window, encode_window, fixed_windows
+
+SPEC = {"representation": "spikes", "sensor": [240, 180], "scale": 1.0, "window_ms": 100}
+Transform = Callable[[Window, np.random.Generator], Window]
+
+
+def thinned(keep: float) -> Transform:
+    return lambda w, rng: thin(w, rng.random(len(w.events)) < keep)
+
+
+def in_box(w: Window, fraction: float) -> np.ndarray:
+    """Mask of the events inside the centred box of ``fraction`` times each side."""
+    ev = w.events
+    dx, dy = ev.width * (1 - fraction) / 2, ev.height * (1 - fraction) / 2
+    return (ev.x >= dx) & (ev.x < ev.width - dx) & (ev.y >= dy) & (ev.y < ev.height - dy)
+
+
+def centre(fraction: float) -> Transform:
+    return lambda w, rng: thin(w, in_box(w, fraction))
+
+
+def periphery(fraction: float) -> Transform:
+    return lambda w, rng: thin(w, ~in_box(w, fraction))
+
+
+def predict(model: torch.nn.Module, window: Window) -> np.ndarray:
+    """(T, 3) angular velocity, rad/s."""
+    with torch.no_grad():
+        return model(encode_window(window, SPEC)[None])[0].T.numpy().astype(np.float64)
+
+
+def simulated(model, windows: list[Window], keep: float, fraction: float, seed: int) -> None:
+    conditions: dict[str, Transform] = {
+        "all": lambda w, rng: w,
+        f"thinned {keep:g}": thinned(keep),
+        f"centre {fraction:g}": centre(fraction),
+        f"periphery {fraction:g}": periphery(fraction),
+    }
+    print(f"\nsimulated windows ({len(windows)}), mean abs error deg/s over steps >= {START}")
+    print(f"{'events':16s} {'share':>6s} {'tilt':>6s} {'pan':>6s} {'roll':>6s} {'med.rel':>7s}")
+    for name, transform in conditions.items():
+        rng = np.random.default_rng(seed)
+        preds, truths, share = [], [], []
+        for i, w in enumerate(windows):
+            changed = transform(w, rng)
+            share.append(len(changed.events) / max(len(w.events), 1))
+            preds.append(predict(model, changed))
+            truths.append(w.omega)
+            print(f"\r{name}: {i + 1}/{len(windows)}", end="", flush=True)
+        s = scores(np.stack(preds), np.stack(truths))
+        print(
+            f"\r{name:16s} {np.mean(share):6.2f} {s['tilt']:6.1f} {s['pan']:6.1f} "
+            f"{s['roll']:6.1f} {s['median_rel']:7.3f}"
+        )
+
+
+def real_window(spec: str, max_ms: int) -> Window:
+    """A real recording ``EVENTS:CALIB:GYRO`` as a window on the model's 240x180 pinhole."""
+    events, calib, gyro = spec.split(":")
+    intrinsics = tuple(float(v) for v in calib.split(",")) if "," in calib else None
+    calibration, _ = resolve_calibration(events, None if intrinsics else calib, intrinsics)
+    ev = read_recording(events).events
+    mapped = event_mapper(ev.sensor_size, {"sensor": [240, 180]}, calibration)(ev)
+    t0 = int(mapped.t[0]) // 1000 * 1000
+    steps = min(max_ms, int(mapped.t[-1] - t0) // 1000)
+    ref = read_gyro(gyro).interpolate(t0 + 1000 * np.arange(steps + 1))
+    return Window(
+        events=mapped.slice_time(t0, t0 + steps * 1000),
+        t_start_us=t0,
+        omega=ref[1:],
+        omega_start=ref[0],
+        source=str(Path(events).parent.name),
+    )
+
+
+def real(model, window: Window) -> None:
+    """Mean estimate from step START on, as recorded and through each trained symmetry."""
+    h, v = HORIZONTAL_MIRROR, VERTICAL_MIRROR
+    turned = flip_vertical(flip_horizontal(window))
+    views = {
+        "as recorded": (window, lambda p: p),
+        "mirrored left-right": (flip_horizontal(window), lambda p: mirror_omega(p, h)),
+        "mirrored up-down": (flip_vertical(window), lambda p: mirror_omega(p, v)),
+        "rotated 180 deg": (turned, lambda p: mirror_omega(p, h @ v)),
+        "time reversed": (reverse_time(window), lambda p: -p[::-1]),
+    }
+    truth = np.degrees(window.omega[START:].mean(axis=0))
+    print(f"\nreal {window.source} ({window.num_steps} ms), mean over steps >= {START}, deg/s")
+    print(f"{'view':22s} {'tilt':>7s} {'pan':>7s} {'roll':>7s}  rel.err of mean")
+    print(f"{'reference':22s} " + " ".join(f"{v:7.1f}" for v in truth))
+    means = []
+    for name, (view, back) in views.items():
+        pred = back(predict(model, view))
+        if name == "time reversed":  # bins map k <-> T-1-k, label shifted by one step
+            pred = np.concatenate([pred[1:], pred[-1:]])
+        mean = np.degrees(pred[START:].mean(axis=0))
+        means.append(mean)
+        rel = np.linalg.norm(mean - truth) / max(np.linalg.norm(truth), 1e-9)
+        print(f"{name:22s} " + " ".join(f"{v:7.1f}" for v in mean) + f"  {rel:5.2f}")
+    spread = np.std(means, axis=0)
+    print(f"{'spread (std)':22s} " + " ".join(f"{v:7.1f}" for v in spread))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--checkpoint", default=str(PRETRAINED_SNN6))
+    ap.add_argument("--data", help="dataset whose test split is probed")
+    ap.add_argument("--windows", type=int, default=100, help="at most this many test windows")
+    ap.add_argument("--keep", type=float, default=0.3, help="share kept by 'thinned'")
+    ap.add_argument("--box", type=float, default=0.5, help="side fraction of the centred box")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--real", nargs="*", default=[], help="EVENTS:CALIB:GYRO real windows")
+    ap.add_argument("--real-ms", type=int, default=1000, help="longest real window, ms")
+    args = ap.parse_args()
+    torch.set_num_threads(2)
+    model, _ = load_checkpoint(args.checkpoint)
+    model.eval()
+    print(f"checkpoint {args.checkpoint}")
+    if args.data:
+        windows = fixed_windows(args.data, "test")[: args.windows]
+        simulated(model, windows, args.keep, args.box, args.seed)
+    for spec in args.real:
+        real(model, real_window(spec, args.real_ms))
+
+
+if __name__ == "__main__":
+    main()
