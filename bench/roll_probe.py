@@ -73,7 +73,8 @@ def periphery(fraction: float) -> Transform:
 def predict(model: torch.nn.Module, window: Window) -> np.ndarray:
     """(T, 3) angular velocity, rad/s."""
     with torch.no_grad():
-        return model(encode_window(window, SPEC)[None])[0].T.numpy().astype(np.float64)
+        x = encode_window(window, {**SPEC, "window_ms": window.num_steps})
+        return model(x[None])[0].T.numpy().astype(np.float64)
 
 
 def simulated(model, windows: list[Window], keep: float, fraction: float, seed: int) -> None:
