@@ -39,8 +39,10 @@ from spikegyro.stream.predict import event_mapper
 from spikegyro.train.augment import (
     HORIZONTAL_MIRROR,
     VERTICAL_MIRROR,
+    centre_mask,
     flip_horizontal,
     flip_vertical,
+    keep_centre,
     mirror_omega,
     reverse_time,
     thin,
@@ -55,19 +57,12 @@ def thinned(keep: float) -> Transform:
     return lambda w, rng: thin(w, rng.random(len(w.events)) < keep)
 
 
-def in_box(w: Window, fraction: float) -> np.ndarray:
-    """Mask of the events inside the centred box of ``fraction`` times each side."""
-    ev = w.events
-    dx, dy = ev.width * (1 - fraction) / 2, ev.height * (1 - fraction) / 2
-    return (ev.x >= dx) & (ev.x < ev.width - dx) & (ev.y >= dy) & (ev.y < ev.height - dy)
-
-
 def centre(fraction: float) -> Transform:
-    return lambda w, rng: thin(w, in_box(w, fraction))
+    return lambda w, rng: keep_centre(w, fraction)
 
 
 def periphery(fraction: float) -> Transform:
-    return lambda w, rng: thin(w, ~in_box(w, fraction))
+    return lambda w, rng: thin(w, ~centre_mask(w.events, fraction))
 
 
 def predict(model: torch.nn.Module, window: Window) -> np.ndarray:

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
+from spikegyro.events.core import EventArray
 from spikegyro.sim.camera import Camera
 from spikegyro.sim.esim import EventSimConfig, simulate
 from spikegyro.sim.panorama import Panorama, mirror_panorama
@@ -23,8 +24,10 @@ from spikegyro.train.augment import (
     VERTICAL_MIRROR,
     AugmentConfig,
     add_noise_events,
+    centre_mask,
     flip_horizontal,
     flip_vertical,
+    keep_centre,
     mirror_omega,
     reverse_time,
     thin,
@@ -228,7 +231,44 @@ def test_presets_turn_density_augmentation_on_only_where_asked():
     sim2real = resolve_config("sim2real", {})
     assert sim2real.online and sim2real.sim == {"sensor": "davis240c"}
     assert AugmentConfig.of(sim2real).keep_min == 0.2
+    assert AugmentConfig.of(sim2real).centre == 0.25 and paper.centre == 0.0
     flag = resolve_config("paper", {"data": "d", "event_keep_min": 0.5, "noise_events_hz": 2.0})
     assert AugmentConfig.of(flag) == AugmentConfig(keep_min=0.5, noise_hz=2.0)
     with pytest.raises(InputError, match="event-keep-min"):
         resolve_config("paper", {"data": "d", "event_keep_min": 1.5})
+    with pytest.raises(InputError, match="centre-crop"):
+        resolve_config("paper", {"data": "d", "centre_crop": -0.1})
+
+
+def test_the_aperture_keeps_a_centred_box_and_commutes_with_the_mirrors(original):
+    # One event on every pixel: the kept pixels are the box, counted by hand.
+    ys, xs = np.mgrid[0 : CAMERA.height, 0 : CAMERA.width]
+    grid = EventArray.from_arrays(
+        xs.ravel(), ys.ravel(), np.arange(xs.size), np.zeros(xs.size), CAMERA.width, CAMERA.height
+    )
+    kept = centre_mask(grid, 0.5).reshape(CAMERA.height, CAMERA.width)
+    cols, rows = np.flatnonzero(kept.any(axis=0)), np.flatnonzero(kept.any(axis=1))
+    assert (cols[0], cols[-1], rows[0], rows[-1]) == (16, 47, 12, 35)  # 32 x 24 of 64 x 48
+    assert kept.sum() == 32 * 24 and kept[12:36, 16:48].all()
+    assert centre_mask(grid, 1.0).all() and not centre_mask(grid, 0.0).any()
+    for fraction in (0.3, 0.55):
+        cropped = keep_centre(original, fraction)
+        assert 0 < len(cropped.events) < len(original.events)
+        np.testing.assert_array_equal(cropped.omega, original.omega)
+        for op in (flip_horizontal, flip_vertical, reverse_time):
+            _same_events(keep_centre(op(original), fraction), op(cropped))
+
+
+def test_the_aperture_is_drawn_with_its_probability_and_off_by_default(original):
+    n = len(original.events)
+    config = AugmentConfig(0.0, 0.0, 0.0, centre=0.3)
+    assert config.enabled
+    rng = np.random.default_rng(7)
+    shares = np.array([len(config(original, rng).events) / n for _ in range(400)])
+    cropped = shares < 1.0
+    assert cropped.mean() == pytest.approx(0.3, abs=0.07)
+    # A box of side U(0.3, 0.7) keeps 9-49 % of the area; this texture fires evenly.
+    assert shares[cropped].min() > 0.05 and shares[cropped].max() < 0.6
+    a, b = np.random.default_rng(5), np.random.default_rng(5)
+    _same_events(AugmentConfig()(original, a), AugmentConfig(centre=0.0)(original, b))
+    assert a.random() == b.random()

@@ -87,6 +87,9 @@ def train_command(
     noise_events_hz: float = typer.Option(
         None, help="Added background events per pixel per s, U(0, this) per window (0 = off)."
     ),
+    centre_crop: float = typer.Option(
+        None, help="Probability that a window keeps only a centred box of its events (0 = off)."
+    ),
     seed: int = typer.Option(None, help="Random seed (model init and samples)."),
     val_every: int = typer.Option(None, help="Validate and checkpoint every N steps."),
     val_windows: int = typer.Option(None, help="Validate on at most N windows (0 = all)."),
@@ -132,6 +135,7 @@ def train_command(
         "time_reverse": time_reverse,
         "event_keep_min": event_keep_min,
         "noise_events_hz": noise_events_hz,
+        "centre_crop": centre_crop,
         "seed": seed,
         "val_every": val_every,
         "val_windows": val_windows,

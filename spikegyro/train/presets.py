@@ -52,6 +52,8 @@ class TrainConfig:
             U(event_keep_min, 1) of its events (1 = off, the paper).
         noise_events_hz: each training window gains uniform background events at a per-pixel
             rate U(0, noise_events_hz) Hz (0 = off, the paper).
+        centre_crop: probability that a training window keeps only the events of a centred box
+            (an aperture; 0 = off, the paper). Teaches roll from events near the optical axis.
         seed: seeds the model initialisation and every training sample.
         val_every: validate and checkpoint every this many steps (and at the end).
         val_windows: validate on at most this many fixed windows (0 = all).
@@ -98,6 +100,7 @@ class TrainConfig:
     time_reverse: float = 0.5
     event_keep_min: float = 1.0
     noise_events_hz: float = 0.0
+    centre_crop: float = 0.0
     seed: int = 0
     val_every: int = 2000
     val_windows: int = 0
@@ -146,6 +149,8 @@ class TrainConfig:
             raise InputError(f"--event-keep-min {self.event_keep_min}: must lie in 0..1.")
         if self.noise_events_hz < 0:
             raise InputError(f"--noise-events-hz {self.noise_events_hz}: must be >= 0.")
+        if not 0.0 <= self.centre_crop <= 1.0:
+            raise InputError(f"--centre-crop {self.centre_crop}: a probability, must lie in 0..1.")
         if not self.data and not self.online:
             raise InputError("train: give --data DIR (a simulated dataset) or --online.")
         object.__setattr__(self, "sensor", tuple(int(v) for v in self.sensor))
@@ -196,6 +201,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "sim": {"sensor": "davis240c"},
         "event_keep_min": 0.2,
         "noise_events_hz": 1.0,
+        "centre_crop": 0.25,
     },
 }
 
