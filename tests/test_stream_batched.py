@@ -2,9 +2,9 @@
 
 Segment 0 starts from rest like the stream, so it must equal it within the stream-vs-batch
 tolerance of ``test_stream_stateful.py``; later segments restart from rest ``context_ms`` before
-they begin, so they are only close. The bounds on "close" are set from measurements (see
-``_deviation``), and the same measurement must flag broken stitching: no context, or outputs one
-bin off.
+they begin, so they are only close. The bounds on "close" (of
+:func:`~spikegyro.stream.batched.deviation`) are set from measurements, and the same measurement
+must flag broken stitching: no context, or outputs one bin off.
 """
 
 from __future__ import annotations
@@ -22,7 +22,12 @@ from spikegyro.models.registry import save_checkpoint
 from spikegyro.models.snn6 import SNN6
 from spikegyro.sim.camera import Camera
 from spikegyro.sim.dataset import SimConfig, simulate_sequence
-from spikegyro.stream.batched import SegmentConfig, batched_predictor, model_predictor
+from spikegyro.stream.batched import (
+    SegmentConfig,
+    batched_predictor,
+    deviation,
+    model_predictor,
+)
 from spikegyro.stream.model import spec_from_model
 from spikegyro.stream.predict import predict_stream
 from spikegyro.stream.stateful import StreamingSNN
@@ -32,13 +37,6 @@ H, W = 48, 64
 SPEC = {"representation": "spikes", "sensor": [W, H], "scale": 1.0, "output": "per_step"}
 CPU = torch.device("cpu")
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-
-
-def _deviation(got: np.ndarray, exact: np.ndarray, skip: int) -> tuple[float, float]:
-    """(median, max) over steps >= ``skip`` of |Δω| / median |ω| (Euclidean norms)."""
-    scale = np.median(np.linalg.norm(exact[skip:], axis=1))
-    err = np.linalg.norm(got[skip:] - exact[skip:], axis=1) / scale
-    return float(np.median(err)), float(err.max())
 
 
 @pytest.fixture(scope="module")
@@ -80,11 +78,11 @@ def test_first_segment_equals_the_stream_later_ones_stay_close(tmp_path, tiny, r
     np.testing.assert_allclose(got["omega"][:400], ref[:400], rtol=0, atol=1e-4 * scale)
     # measured (TinySNN, this recording): median 1.5e-7, max 2.0e-3; with 20 ms of context the
     # max is 0.54, without context 1.1; one bin off gives a median of 3.6e-3
-    median, worst = _deviation(got["omega"], ref, 400)
+    median, worst = deviation(got["omega"], ref, 400)
     assert median < 1e-4 and worst < 0.02, (median, worst)
-    assert _deviation(np.roll(got["omega"], 1, axis=0), ref, 400)[0] > 1e-3
+    assert deviation(np.roll(got["omega"], 1, axis=0), ref, 400)[0] > 1e-3
     blind = _batched(tiny, recording, tmp_path / "c.h5", SegmentConfig(400, 0, batch=2))
-    assert _deviation(blind["omega"], ref, 400)[1] > 0.2
+    assert deviation(blind["omega"], ref, 400)[1] > 0.2
 
 
 def test_the_batch_size_does_not_change_the_output(tmp_path, tiny, recording):
@@ -151,7 +149,7 @@ def test_shipped_snn6_batched_against_the_stream(tmp_path):
     got = read_predictions(tmp_path / "b.h5")["omega"]
     # measured (float32, this recording): median 2.6e-4, max 5.8e-3 (float32 spike flips
     # included); 50 ms of context: max 0.21; one bin off: median 5.3e-3
-    median, worst = _deviation(got, ref, 400)
+    median, worst = deviation(got, ref, 400)
     assert median < 2e-3 and worst < 0.05, (median, worst)
     # segment 0 in float64 on both sides, as test_snn6_streaming_equals_its_batch_forward
     # (in float32 a potential within rounding of the threshold flips a spike: 9e-4 of max|ω|)

@@ -40,6 +40,7 @@ __all__ = [
     "BatchedPredictor",
     "SegmentConfig",
     "batched_predictor",
+    "deviation",
     "model_predictor",
     "resolve_device",
 ]
@@ -207,6 +208,14 @@ class BatchedPredictor:
             x = x.to(next(self.model.parameters()).dtype)
             omega = self.model(x)[:, :, context:]  # (n, 3, L)
             return omega.transpose(1, 2).reshape(-1, 3).double().cpu().numpy()
+
+
+def deviation(got: np.ndarray, exact: np.ndarray, skip: int) -> tuple[float, float]:
+    """How far batched ω is from the stream's: (median, max) over steps ``skip`` … of
+    |Δω| / median |ω| (Euclidean norms of (K, 3) rad/s; unitless)."""
+    scale = np.median(np.linalg.norm(exact[skip:], axis=1))
+    err = np.linalg.norm(got[skip:] - exact[skip:], axis=1) / scale
+    return float(np.median(err)), float(err.max())
 
 
 def _empty() -> tuple[np.ndarray, np.ndarray]:
