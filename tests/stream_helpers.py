@@ -30,6 +30,9 @@ class TinySNN(nn.Module):
         s3 = self.conv3(s2)
         return self.fc(self.pool(s3)), [s1, s2, s3]
 
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.forward_with_spikes(x)[0]
+
 
 def random_events(
     width: int, height: int, duration_ms: int, rate: float, seed: int = 0, t0_us: int = 0

@@ -7,6 +7,8 @@
   shipped pretrained SNN-6.
 - :mod:`spikegyro.stream.predict`: ``predict_stream`` (file -> reprojection -> 1 ms bins -> engine
   -> prediction file, flat memory), ``event_mapper``, ``model_camera``, ``ErrorStats``.
+- :mod:`spikegyro.stream.batched`: the ``--device`` path of ``predict``: segments with warm-up
+  context, binned and run in batches on a torch device (GPU throughput, approximate).
 - :mod:`spikegyro.stream.writer`: prediction files (CSV/HDF5), also used by the baselines.
 - :mod:`spikegyro.stream.commands`: ``spikegyro predict``.
 

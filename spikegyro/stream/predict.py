@@ -2,7 +2,9 @@
 
 The pipeline never holds more than one chunk of events: ``iter_event_chunks`` -> reproject onto
 the model's camera -> split into completed 1 ms bins -> :class:`StreamingSNN` -> prediction
-writer. Memory is flat in the length of the recording (the plot keeps a decimated copy of at most
+writer. The engine is swappable: anything with ``push``/``finish`` (a :class:`Predictor`), such as
+the batched torch path of :mod:`spikegyro.stream.batched`, can take the stream's place.
+Memory is flat in the length of the recording (the plot keeps a decimated copy of at most
 ``_PLOT_POINTS`` samples; the median relative error comes from a fine log histogram).
 """
 
@@ -14,7 +16,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import h5py
 import numpy as np
@@ -28,6 +30,8 @@ from spikegyro.stream.writer import PredictionWriter, write_predictions
 
 __all__ = [
     "ErrorStats",
+    "Predictor",
+    "PredictorFactory",
     "StreamPredictor",
     "event_mapper",
     "model_camera",
@@ -83,6 +87,26 @@ def event_mapper(
     return (lambda ev: ev) if scale == 1.0 else (lambda ev: ev.rescale(scale))
 
 
+class Predictor(Protocol):
+    """Turns time-ordered events on the model's grid into ω per 1 ms bin since ``t0_us``.
+
+    ``push`` and ``finish`` return (t_us, ω rad/s) of the bins they completed, in order, each
+    bin once, stamped at the bin's end; ``steps`` counts the bins returned so far; ``label``
+    names the engine in summaries.
+    """
+
+    steps: int
+    label: str
+
+    def push(self, events: EventArray) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def finish(self, t_end_us: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+PredictorFactory = Callable[[PinholeCamera, int], Predictor]
+"""Builds a fresh :class:`Predictor` for the model's camera and the first bin's start (µs)."""
+
+
 class StreamPredictor:
     """Feed time-ordered events (already on the model's grid); get ω for every completed 1 ms bin.
 
@@ -92,6 +116,8 @@ class StreamPredictor:
 
     def __init__(self, engine: StreamingSNN, width: int, t0_us: int) -> None:
         self.engine = engine
+        threads = "thread" if engine.threads == 1 else "threads"
+        self.label = f"event-driven stream (exact; CPU, {engine.threads} {threads})"
         self.width = width
         self.t0_us = int(t0_us)
         self.steps = 0
@@ -267,6 +293,7 @@ class StreamResult:
     events: int = 0
     wall_s: float = 0.0
     t0_us: int = 0
+    engine: str = ""
     stats: dict[str, float] = field(default_factory=dict)
     plot: Path | None = None
 
@@ -278,7 +305,7 @@ class StreamResult:
 
 def predict_stream(
     events_path: str | os.PathLike,
-    engine: StreamingSNN,
+    engine: StreamingSNN | PredictorFactory,
     input_spec: dict[str, Any],
     out_path: str | os.PathLike,
     *,
@@ -296,7 +323,8 @@ def predict_stream(
 
     Args:
         events_path: any event file :mod:`spikegyro.events.io` reads.
-        engine: the stateful network (reset here).
+        engine: the stateful network (reset here), or a factory of another :class:`Predictor`
+            (e.g. :func:`spikegyro.stream.batched.batched_predictor`).
         input_spec: the checkpoint's input description (sensor, scale, intrinsics).
         out_path: ``.csv`` or ``.h5`` prediction file (written atomically).
         calibration: the sensor's calibration; None when the sensor is the model's own.
@@ -319,11 +347,15 @@ def predict_stream(
     if t0 is None:
         raise InputError(f"{events_path}: the file holds no events.")
     result.t0_us = t0
-    engine.reset()
     target = model_camera(input_spec)
+    if isinstance(engine, StreamingSNN):
+        engine.reset()
+        predictor: Predictor = StreamPredictor(engine, target.width, t0)
+    else:
+        predictor = engine(target, t0)
+    result.engine = predictor.label
     stats, series = ErrorStats(), _Decimated()
     mapper: Callable[[EventArray], EventArray] | None = None
-    predictor = StreamPredictor(engine, target.width, t0)
     start = time.perf_counter()
     last_t = t0
 
