@@ -26,16 +26,12 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 import torch
-from roll_readout import START, scores
+from roll_readout import START, real_recording, scores
 
-from spikegyro.events.calib import resolve_calibration
-from spikegyro.events.io import read_gyro, read_recording
 from spikegyro.models.registry import PRETRAINED_SNN6, load_checkpoint
-from spikegyro.stream.predict import event_mapper
 from spikegyro.train.augment import (
     HORIZONTAL_MIRROR,
     VERTICAL_MIRROR,
@@ -97,25 +93,6 @@ def simulated(model, windows: list[Window], keep: float, fraction: float, seed: 
         )
 
 
-def real_window(spec: str, max_ms: int) -> Window:
-    """A real recording ``EVENTS:CALIB:GYRO`` as a window on the model's 240x180 pinhole."""
-    events, calib, gyro = spec.split(":")
-    intrinsics = tuple(float(v) for v in calib.split(",")) if "," in calib else None
-    calibration, _ = resolve_calibration(events, None if intrinsics else calib, intrinsics)
-    ev = read_recording(events).events
-    mapped = event_mapper(ev.sensor_size, {"sensor": [240, 180]}, calibration)(ev)
-    t0 = int(mapped.t[0]) // 1000 * 1000
-    steps = min(max_ms, int(mapped.t[-1] - t0) // 1000)
-    ref = read_gyro(gyro).interpolate(t0 + 1000 * np.arange(steps + 1))
-    return Window(
-        events=mapped.slice_time(t0, t0 + steps * 1000),
-        t_start_us=t0,
-        omega=ref[1:],
-        omega_start=ref[0],
-        source=str(Path(events).parent.name),
-    )
-
-
 def real(model, window: Window) -> None:
     """Mean estimate from step START on, as recorded and through each trained symmetry."""
     h, v = HORIZONTAL_MIRROR, VERTICAL_MIRROR
@@ -163,7 +140,7 @@ def main() -> None:
         windows = fixed_windows(args.data, "test")[: args.windows]
         simulated(model, windows, args.keep, args.box, args.seed)
     for spec in args.real:
-        real(model, real_window(spec, args.real_ms))
+        real(model, real_recording(spec, args.real_ms))
 
 
 if __name__ == "__main__":

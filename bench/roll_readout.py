@@ -28,7 +28,7 @@ from spikegyro.models.registry import PRETRAINED_SNN6, load_checkpoint
 from spikegyro.snn.functional import psp
 from spikegyro.snn.layers import RegionPool
 from spikegyro.stream.predict import event_mapper
-from spikegyro.train.data import encode_window, fixed_windows
+from spikegyro.train.data import Window, encode_window, fixed_windows
 
 START = 50  # steps scored, as in the paper's metrics
 
@@ -106,8 +106,8 @@ def dataset(model, data: str, split: str, limit: int, grid) -> list[tuple[np.nda
     return out
 
 
-def real_window(model, spec: str, grid, max_ms: int) -> tuple[np.ndarray, np.ndarray, str]:
-    """Features and reference ω of a real window ``EVENTS:CALIB:GYRO``; CALIB may be fx,fy,cx,cy."""
+def real_recording(spec: str, max_ms: int) -> Window:
+    """A real recording ``EVENTS:CALIB:GYRO`` as a window on the model's 240x180 pinhole."""
     events, calib, gyro = spec.split(":")
     intrinsics = tuple(float(v) for v in calib.split(",")) if "," in calib else None
     calibration, _ = resolve_calibration(events, None if intrinsics else calib, intrinsics)
@@ -115,12 +115,25 @@ def real_window(model, spec: str, grid, max_ms: int) -> tuple[np.ndarray, np.nda
     mapped = event_mapper(ev.sensor_size, {"sensor": [240, 180]}, calibration)(ev)
     t0 = int(mapped.t[0]) // 1000 * 1000
     steps = min(max_ms, int(mapped.t[-1] - t0) // 1000)
+    ref = read_gyro(gyro).interpolate(t0 + 1000 * np.arange(steps + 1))
+    return Window(
+        events=mapped.slice_time(t0, t0 + steps * 1000),
+        t_start_us=t0,
+        omega=ref[1:],
+        omega_start=ref[0],
+        source=str(Path(events).parent.name),
+    )
+
+
+def real_window(model, spec: str, grid, max_ms: int) -> tuple[np.ndarray, np.ndarray, str]:
+    """Features and reference ω of a real window ``EVENTS:CALIB:GYRO``; CALIB may be fx,fy,cx,cy."""
+    w = real_recording(spec, max_ms)
+    ev = w.events
     spikes = spike_tensor(
-        mapped.x, mapped.y, mapped.t, mapped.p, height=180, width=240, t_start_us=t0,
-        num_bins=steps,
+        ev.x, ev.y, ev.t, ev.p, height=180, width=240, t_start_us=w.t_start_us,
+        num_bins=w.num_steps,
     )  # fmt: skip
-    ref = read_gyro(gyro).interpolate(t0 + 1000 * (1 + np.arange(steps)))
-    return grid_features(model, torch.from_numpy(spikes), grid), ref, Path(events).parent.name
+    return grid_features(model, torch.from_numpy(spikes), grid), w.omega, w.source
 
 
 def main() -> None:
