@@ -7,7 +7,7 @@ import torch
 from torch import nn
 
 from spikegyro.events.core import EventArray
-from spikegyro.snn.layers import GASP, SRMConv, SRMDense, SRMParams
+from spikegyro.snn.layers import GASP, SRMConv, SRMDense, SRMParams, _SRMLayer
 
 
 class TinySNN(nn.Module):
@@ -32,6 +32,16 @@ class TinySNN(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.forward_with_spikes(x)[0]
+
+
+def exact_double(model: nn.Module) -> nn.Module:
+    """``model`` in float64 with its kernels recomputed in float64 (not widened from float32):
+    the batch forward that the float64 streaming engine must equal to the last bits."""
+    model.double()
+    for layer in model.modules():
+        if isinstance(layer, _SRMLayer):
+            layer.exact_kernels()
+    return model
 
 
 def random_events(

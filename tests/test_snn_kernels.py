@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 
 from spikegyro.snn.kernels import refractory_kernel, srm_kernel
 
@@ -48,3 +49,17 @@ def test_kernels_reject_nonpositive_constants():
         srm_kernel(0.0)
     with pytest.raises(ValueError):
         refractory_kernel(0.3, -1.0)
+
+
+@pytest.mark.parametrize("tau_s", [1.0, 2.0, 4.0])
+def test_float64_kernels_are_exact_and_float32_ones_rounded(tau_s):
+    eps64 = srm_kernel(tau_s, dtype=torch.float64).numpy()
+    k = np.arange(eps64.size)
+    np.testing.assert_allclose(eps64, k / tau_s * np.exp(1 - k / tau_s), rtol=1e-15, atol=0)
+    widened = srm_kernel(tau_s).double().numpy()
+    assert widened.size == eps64.size
+    rel = np.abs(widened - eps64)[1:] / eps64[1:]
+    assert 0 < rel.max() <= 2.0**-24  # half a float32 ulp
+    nu64 = refractory_kernel(0.4, tau_s, dtype=torch.float64).numpy()
+    j = np.arange(nu64.size - 1)
+    np.testing.assert_allclose(nu64[1:], -0.8 * np.exp(-j / tau_s), rtol=1e-15, atol=0)

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 import torch
-from stream_helpers import TinySNN, random_events, step_offsets
+from stream_helpers import TinySNN, exact_double, random_events, step_offsets
 
 from spikegyro.events.representations import spike_tensor
 from spikegyro.models.registry import PRETRAINED_SNN6, save_checkpoint
@@ -104,7 +104,7 @@ def test_pipeline_balances_the_profiled_work(spec):
 
 @pytest.mark.parametrize("maps", [(False, False, False), (True, True, True)])
 def test_input_maps_or_tail_scatter_both_equal_the_batch_forward(maps):
-    model = TinySNN().double()
+    model = exact_double(TinySNN())
     events = random_events(W, H, STEPS, rate=0.02, seed=1)
     x = spike_tensor(events.x, events.y, events.t, events.p, height=H, width=W, t_start_us=0,
                      num_bins=STEPS)  # fmt: skip

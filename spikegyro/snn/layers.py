@@ -55,13 +55,28 @@ class _SRMLayer(nn.Module):
         super().__init__()
         self.params = params
         self.weight = nn.Parameter(torch.empty(weight_shape))
-        self.register_buffer("srm_kernel", srm_kernel(params.tau_s))
-        if params.spiking:
-            self.register_buffer(
-                "ref_kernel",
-                refractory_kernel(params.theta, params.tau_r, scale_ref=params.scale_ref),
-            )
+        for name, kernel in self._kernels(torch.float32).items():
+            self.register_buffer(name, kernel)
         self.reset_parameters()
+
+    def _kernels(self, dtype: torch.dtype) -> dict[str, torch.Tensor]:
+        p = self.params
+        kernels = {"srm_kernel": srm_kernel(p.tau_s, dtype=dtype)}
+        if p.spiking:
+            kernels["ref_kernel"] = refractory_kernel(
+                p.theta, p.tau_r, scale_ref=p.scale_ref, dtype=dtype
+            )
+        return kernels
+
+    def exact_kernels(self) -> None:
+        """Recompute the kernels from the parameters in float64 (on the weight's device).
+
+        ``.double()`` only widens the float32 taps, which keep their rounding (≤ 6e-8 relative);
+        a float64 forward with exact taps is the reference that the streaming engine, which runs
+        the kernels as exact recursions, reproduces to the last bits.
+        """
+        for name, kernel in self._kernels(torch.float64).items():
+            setattr(self, name, kernel.to(self.weight.device))
 
     def reset_parameters(self, gain: float = 1.0) -> None:
         """Uniform weights in ±gain/√fan_in (PyTorch's default conv init when gain = 1)."""

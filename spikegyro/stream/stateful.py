@@ -15,7 +15,10 @@ feeding each input a second time, L (or M) steps later, with the weight of the k
     D[t] = p D[t-1] + p A[t-1] - L p^L x[t-L]          u[t] = c D[t] + R[t]
     R[t] = q R[t-1] + a s[t-1] - a q^(M-1) s[t-M]
 
-(the impulse response of ``c D`` is ``c k p^k`` for k < L and exactly 0 from k = L on). The
+(the impulse response of ``c D`` is ``c k p^k`` for k < L and exactly 0 from k = L on). These
+are the exact kernels: a checkpoint's float32 taps differ from them by their rounding (≤ 6e-8
+relative), so a float64 batch forward is matched to the last bits only with taps computed in
+float64 (:meth:`spikegyro.snn.layers.SRMConv.exact_kernels`). The
 synaptic input ``x = W * s_in`` is never stored as a map: each layer keeps the *lists* of input
 spikes of its last L steps (and of its own spikes, M steps) and scatters them straight into the
 state, once with weight 1 into ``A`` when they arrive and once with the tail weights into ``A``
