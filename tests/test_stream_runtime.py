@@ -79,42 +79,27 @@ def test_scatter_tables_reach_exactly_the_windows_holding_each_input_pixel(kh, k
 
 
 @pytest.mark.parametrize("block", [1, 4, 16])
-def test_two_thread_pipeline_equals_one_thread_bit_for_bit(spec, stream, block):
+def test_two_thread_pipeline_equals_one_thread(spec, stream, block):
     index, offsets = stream
     single = StreamingSNN(spec)
     expected = single.run(index, offsets)
     piped = StreamingSNN(spec, threads=2, block_steps=block)
-    cuts = []
-    outs, a = [], 0
-    for b in [5, 6, 77, 120, len(offsets) - 1]:  # state and ring slots carried across calls
-        outs.append(piped.run(index[offsets[a] : offsets[b]], offsets[a : b + 1] - offsets[a]))
-        cuts.append(piped.bands[:, 1].tolist())
-        a = b
-    np.testing.assert_array_equal(np.concatenate(outs), expected)
+    got = _calls(piped, index, offsets, [5, 6, 77])  # state and ring slots carried across calls
+    np.testing.assert_array_equal(got, expected)
     np.testing.assert_array_equal(piped.spike_counts, single.spike_counts)
-    # both stages fired spikes, and the cut moved between calls (state crossed stages)
-    assert (piped._spike_counts.sum(axis=1) > 0).all()
-    assert len({tuple(c) for c in cuts}) > 1
+    assert 1 <= piped._split() < len(spec.layers)
 
 
-def test_the_cut_splits_the_profiled_work_in_halves(spec):
+def test_pipeline_balances_the_profiled_work(spec):
     piped = StreamingSNN(spec, threads=2)
-    heights = piped._geo[:, 4]
-    cycles = piped._cycles[0]
-    cycles[:] = 0
-    cycles[0, 3], cycles[1, 0], cycles[2, 0] = 10, 8, 6  # layers 1..3: half of 24 is a quarter
-    rows = piped._row_work[piped._row_off[1] : piped._row_off[2]]  # into layer 2
-    rows[:] = 0
-    rows[1], rows[3] = 1, 3  # layer 2's work: a quarter in row 1, the rest in row 3
-    cut = piped._cut()
-    assert cut[:, 0].tolist() == [0, 0, 0] and cut[:, 2].tolist() == heights.tolist()
-    assert cut[:, 1].tolist() == [heights[0], 2, 0]  # layer 2 rows 0..1 go first, 2.. second
-    cycles[2, 0] = 30  # layer 3 is now the heaviest: 0.2 of its rows (uniform) go first
-    rows[:] = 0
-    assert piped._cut()[:, 1].tolist() == [heights[0], heights[1], round(0.2 * heights[2])]
-    cycles[:] = 0  # no profile: the neuron counts
-    piped._cycles_before[:] = 0
-    assert 0 < piped._cut()[:, 1].sum() < heights.sum()
+    piped._cycles[:] = 0
+    piped._cycles[0, 3] = 10  # layer 1 is the heaviest by far: alone in the first stage
+    piped._cycles[1, 0] = piped._cycles[2, 0] = 3
+    assert piped._split() == 1
+    piped._cycles[2, 0] = 30  # now layer 3 is: layers 1 and 2 go first
+    assert piped._split() == 2
+    piped.reset()  # a new recording: the profile restarts, the balance is remembered
+    assert not piped.profile().any() and piped._split() == 2
 
 
 @pytest.mark.parametrize("maps", [(False, False, False), (True, True, True)])

@@ -37,11 +37,9 @@ Work per step and layer (the kinds :attr:`StreamingSNN.profile` times):
 The kernels run in Numba (compiled once, cached on disk): the inner loops are scatter-adds and
 branchy per-pixel passes that vectorised NumPy/torch would either densify or pay for in
 per-call overhead (a step is ~100 µs of work; a torch op costs ~5-10 µs to dispatch). With
-``threads=2`` the network is cut in two stages that run as a pipeline on two cores, the first
-one block of ``block_steps`` ms ahead of the second. The cut may fall between two rows of a
-layer's output (each stage then scatters only into its own rows and keeps its own spike list per
-step), so the stages can be balanced to the row, not only to the layer. ``bench/streaming.py``
-measures it against the naive dense execution.
+``threads=2`` the layers are split in two groups that run as a pipeline on two cores, the first
+group one block of ``block_steps`` ms ahead of the second. ``bench/streaming.py`` measures it
+against the naive dense execution.
 """
 
 from __future__ import annotations
@@ -174,16 +172,13 @@ class StreamingSNN:
     step_offsets[s+1]]`` (flat indices ``(y * width + x) * 2 + polarity``, duplicates allowed).
     It returns the readout at each step, (steps, outputs) float64 — equal to the batch forward of
     the same spike tensor at those steps, whatever the threads and however the steps are split
-    into calls (bit for bit the same for any number of threads).
+    into calls.
 
     Args:
         spec: the network.
         dtype: dtype of the state and weights (float32, or float64 for bit-level comparisons).
-        threads: 1, or 2 to run the network as a two-stage pipeline on two cores: the first
-            thread runs the input and the layers up to a cut, the second the rest and the
-            readout, one block behind. The cut may fall inside a layer (between two rows of
-            its output); it is set at each call from the work profiled so far, so that the
-            stages take equal time (a call returns once both have finished all its steps).
+        threads: 1, or 2 to run the layers as a two-stage pipeline on two cores (a call then
+            returns once both stages have finished all its steps).
         block_steps: steps run layer by layer (a layer's weights stay in cache), and by which
             the first stage of the pipeline runs ahead of the second, ms.
         input_maps: per layer, keep the synaptic input as a ring of L + 1 maps (True) or scatter
@@ -234,8 +229,7 @@ class StreamingSNN:
             z_off.append(z_off[-1] + (big_l + 1) * cout * hout * wout * int(klen[i, 2]))
         # spike-list ring b holds the spikes entering layer b (b = 0: the input events); it reaches
         # back L steps for layer b's psp tail and M steps for layer b - 1's refractory tail; layer
-        # b - 1 writes up to one block ahead of what layer b reads (two in a pipeline). A slot
-        # holds one list per stage (its rows of the layer).
+        # b - 1 writes up to one block ahead of what layer b reads (two in a pipeline).
         slack = block_steps * threads
         reach = [max(klen[b, 0] if b < n_layers else 0, klen[b - 1, 1] if b else 0)
                  for b in range(n_layers + 1)]  # fmt: skip
@@ -250,7 +244,6 @@ class StreamingSNN:
         self._st_off = np.array(st_off, dtype=np.int64)
         self._pos_off = np.array(pos_off, dtype=np.int64)
         self._z_off = np.array(z_off, dtype=np.int64)
-        self._row_off = np.cumsum([0] + [h_ for _, h_, _ in shapes[1:]], dtype=np.int64)
         self._ring_len, self._ring_cap = ring_len, ring_cap
         self._ring_off = np.concatenate([[0], np.cumsum(ring_len * ring_cap)]).astype(np.int64)
         self._cnt_off = np.concatenate([[0], np.cumsum(ring_len)]).astype(np.int64)
@@ -259,7 +252,6 @@ class StreamingSNN:
         self._fc = fc / (h_last * w_last)  # GASP's mean folded into the readout
         self._out_kernel = np.asarray(spec.out_kernel, dtype=np.float64)
         self._dtype = dtype
-        self._mask = np.zeros((threads, 8 * (int(ring_cap[1:].max()) // 8 + 1)), dtype=np.uint8)
         self._pool: ThreadPoolExecutor | None = None
         self.reset()
 
@@ -268,115 +260,82 @@ class StreamingSNN:
         """Number of 1 ms steps advanced since the last reset."""
         return int(self._t)
 
-    @property
-    def spike_counts(self) -> np.ndarray:
-        """Spikes fired per layer since the last reset, int64 (layers,)."""
-        return self._spike_counts.sum(axis=0)
-
     def reset(self) -> None:
         """Clear all state (as at the start of a recording) and the profile."""
-        n_layers, n_threads = len(self.spec.layers), self.threads
         self._state = np.zeros((3, int(self._st_off[-1])), dtype=self._dtype)  # A, D, R
         self._z = np.zeros(int(self._z_off[-1]), dtype=self._dtype)
         self._last = np.full(int(self._pos_off[-1]), _NEG_BIG, dtype=np.int64)
-        # only the first ring_cnt entries of a list are ever read: no need to clear the rings
+        # only the first ring_cnt entries of a slot are ever read: no need to clear the rings
         self._ring = np.empty(int(self._ring_off[-1]), dtype=np.int32)
-        self._ring_cnt = np.zeros((int(self._cnt_off[-1]), n_threads), dtype=np.int64)
-        self._ring_seg = np.zeros((int(self._cnt_off[-1]), n_threads), dtype=np.int64)
+        self._ring_cnt = np.zeros(int(self._cnt_off[-1]), dtype=np.int64)
         self._seen = np.full(int(self._ring_cap[0]), _NEG_BIG, dtype=np.int64)
         self._h = np.zeros((len(self._out_kernel), self._fc.shape[0]), dtype=np.float64)
         self._t = 0
-        self._spike_counts = np.zeros((n_threads, n_layers), dtype=np.int64)
-        # the pipeline's cut learns from every recording, the profile from this one
-        before = np.zeros((n_layers + 1, len(PROFILE_KINDS)), dtype=np.int64)
-        if hasattr(self, "_cycles"):
-            before += self._cycles_before + self._cycles.sum(axis=0)
-        self._cycles_before = before
-        self._cycles = np.zeros((n_threads, n_layers + 1, len(PROFILE_KINDS)), dtype=np.int64)
-        self._cycles_at_cut = self._cycles.copy()
-        # work per output row since the last cut; each layer's rows [bands[l, k], bands[l, k+1])
-        # belong to stage k (one stage: all of them)
-        self._row_work = np.zeros(int(self._row_off[-1]), dtype=np.int64)
-        heights = self._geo[:, 4]
-        self.bands = np.stack([np.zeros_like(heights), *[heights] * n_threads], axis=1)
-        self._t_cut = 0
+        self.spike_counts = np.zeros(len(self.spec.layers), dtype=np.int64)
+        # the pipeline's balance learns from every recording, the profile from this one
+        cycles = getattr(self, "_cycles", 0)
+        self._cycles_before = cycles + getattr(self, "_cycles_before", 0)
+        self._cycles = np.zeros((len(self.spec.layers) + 1, len(PROFILE_KINDS)), dtype=np.int64)
 
     def profile(self) -> np.ndarray:
-        """CPU seconds spent since the last reset, all threads, (layers + 1, len(PROFILE_KINDS)):
-        per layer and kind of work; the last row holds the input binning and the readout."""
-        return self._cycles.sum(axis=0) / _cycle_rate()
+        """CPU seconds spent since the last reset, (layers + 1, len(PROFILE_KINDS)): per layer
+        and kind of work; the last row holds the input binning and the readout."""
+        return self._cycles / _cycle_rate()
 
     def run(self, input_index: np.ndarray, step_offsets: np.ndarray) -> np.ndarray:
         """Advance ``len(step_offsets) - 1`` steps; returns the readout, (steps, outputs)."""
         input_index = np.ascontiguousarray(input_index, dtype=np.int64)
         step_offsets = np.ascontiguousarray(step_offsets, dtype=np.int64)
         n = len(step_offsets) - 1
+        n_layers = len(self.spec.layers)
         out = np.zeros((n, self._fc.shape[0]), dtype=np.float64)
         # blocks bound the latency of a pipeline and keep a layer in cache for a few steps
         edges = [*range(0, n, self.block_steps), n]
-        if self.threads == 1 or len(edges) < 3:
+        if self.threads == 1 or len(edges) < 3 or n_layers < 2:
             for s0, s1 in itertools.pairwise(edges):
-                for k in range(self.threads):
-                    self._stage(input_index, step_offsets, out, s0, s1, k)
+                self._block(input_index, step_offsets, out, s0, s1, 0, n_layers)
         else:
-            cut = self._cut()
-            if not np.array_equal(cut, self.bands):
-                self.bands, self._t_cut = cut, self._t
-                self._row_work[:] = 0
-                self._cycles_at_cut = self._cycles.copy()
-            self._pipeline(input_index, step_offsets, out, edges)
+            self._pipeline(input_index, step_offsets, out, edges, self._split())
         self._t += n
         return out
 
-    def _stage(self, inp, offs, out, s0: int, s1: int, k: int) -> None:
-        """Steps ``s0..s1`` of this call through stage ``k``: the input (first stage), its rows
-        of each layer, the readout (last stage)."""
-        _run_stage(
-            inp, offs, s0, s1, k, self._t, self._t_cut, out, self._geo, self._par, self._klen,
-            self._tab, self._tab_off, self._w, self._w_off, self._state, self._st_off, self._z,
-            self._z_off, self._last, self._pos_off, self._ring, self._ring_off, self._ring_len,
-            self._ring_cap, self._ring_cnt, self._ring_seg, self._cnt_off, self._seen, self._fc,
-            self._out_kernel, self._h, self._spike_counts[k], self._cycles[k], self._mask[k],
-            self.bands, self._row_work, self._row_off,
+    def _block(self, inp, offs, out, s0: int, s1: int, l0: int, l1: int) -> None:
+        """Steps ``s0..s1`` of this call through layers ``l0..l1`` (and the readout if last)."""
+        _run_block(
+            inp, offs, s0, s1, l0, l1, self._t, out, self._geo, self._par, self._klen, self._tab,
+            self._tab_off, self._w, self._w_off, self._state, self._st_off, self._z, self._z_off,
+            self._last, self._pos_off, self._ring, self._ring_off, self._ring_len, self._ring_cap,
+            self._ring_cnt, self._cnt_off, self._seen, self._fc, self._out_kernel, self._h,
+            self.spike_counts, self._cycles,
         )  # fmt: skip
 
-    def _pipeline(self, inp, offs, out, edges: list[int]) -> None:
-        """The first stage runs block b + 1 on this thread while the second runs block b."""
+    def _pipeline(self, inp, offs, out, edges: list[int], split: int) -> None:
+        """Layers ``< split`` run block b + 1 on this thread while the rest run block b."""
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="snn-stage2")
-        self._stage(inp, offs, out, edges[0], edges[1], 0)
+        n_layers = len(self.spec.layers)
+        self._block(inp, offs, out, edges[0], edges[1], 0, split)
         for b in range(1, len(edges)):
-            later = self._pool.submit(self._stage, inp, offs, out, edges[b - 1], edges[b], 1)
+            later = self._pool.submit(
+                self._block, inp, offs, out, edges[b - 1], edges[b], split, n_layers
+            )
             try:
                 if b + 1 < len(edges):
-                    self._stage(inp, offs, out, edges[b], edges[b + 1], 0)
+                    self._block(inp, offs, out, edges[b], edges[b + 1], 0, split)
             finally:
                 later.result()
 
-    def _cut(self) -> np.ndarray:
-        """The two stages' rows of each layer (see :attr:`bands`) such that both take equal time:
-        the first stage gets the input and the layers in order up to the cut, the second the rest
-        and the readout. From the work profiled since the last cut (else in earlier recordings,
-        else the neuron counts); the cut row inside a layer splits its counted row work."""
-        since = (self._cycles - self._cycles_at_cut).sum(axis=0)
-        cycles = since if since.any() else self._cycles.sum(axis=0) + self._cycles_before
-        per_layer = cycles[:-1].sum(axis=1).astype(np.float64)
-        first, last = float(cycles[-1, 0]), float(cycles[-1, 1])
+    def _split(self) -> int:
+        """First layer of the pipeline's second stage: balances the work profiled so far (the
+        neuron counts before any profile exists)."""
+        cycles = (self._cycles + self._cycles_before).astype(np.float64)
+        per_layer = cycles[:-1].sum(axis=1)
+        per_layer[0] += cycles[-1, 0]  # input binning runs with layer 1, the readout with the last
+        per_layer[-1] += cycles[-1, 1]
         if per_layer.sum() == 0:
             per_layer = (self._st_off[1:] - self._st_off[:-1]).astype(np.float64)
-            first = last = 0.0
-        heights = self._geo[:, 4]
-        half = (first + per_layer.sum() + last) / 2
-        ahead = first + np.concatenate([[0.0], np.cumsum(per_layer)])
-        j = min(int(np.searchsorted(ahead[1:], half)), len(per_layer) - 1)
-        share = np.clip((half - ahead[j]) / max(per_layer[j], 1e-300), 0.0, 1.0)
-        rows = self._row_work[self._row_off[j] : self._row_off[j + 1]].astype(np.float64)
-        if rows.sum() == 0:
-            rows = np.ones(heights[j])
-        before_row = np.concatenate([[0.0], np.cumsum(rows)])  # work of the rows above each row
-        cut = np.where(np.arange(len(heights)) < j, heights, 0)
-        cut[j] = int(np.argmin(np.abs(before_row - share * rows.sum())))
-        return np.stack([np.zeros_like(heights), cut, heights], axis=1)
+        first = np.cumsum(per_layer)[:-1]
+        return int(np.argmin(np.maximum(first, per_layer.sum() - first))) + 1
 
 
 @intrinsic
@@ -425,25 +384,18 @@ def _cycle_rate() -> float:
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _scatter(  # pragma: no cover
-    spikes, g, tab, w, w0, za, zd, z0, last, p0, t, tail_a, tail_d, r0, r1, row_work
-):
-    """Add ``W[:, ci, ky, kx]`` to ``za[z0 + pixel * Cout:]`` for each output pixel of rows
-    ``r0..r1`` (a stage's) a spike reaches (``A`` or a map of the ring) and mark the pixel touched
-    at ``t``; with ``tail_a`` != 0, add it scaled by ``tail_a`` to ``za`` and by ``tail_d`` to
-    ``zd`` (``A`` and ``D``) instead: the kernel's truncation, L steps later, when the pixel is
-    still live.
-    ``tab``: the layer's :func:`_target_table`; ``row_work`` counts the weights added per row."""
+def _scatter(spikes, g, tab, w, w0, za, zd, z0, last, p0, t, tail_a, tail_d):  # pragma: no cover
+    """Add ``W[:, ci, ky, kx]`` to ``za[z0 + pixel * Cout:]`` for each output pixel a spike reaches
+    (``A`` or a map of the ring) and mark the pixel touched at ``t``; with ``tail_a`` != 0, add
+    it scaled by ``tail_a`` to ``za`` and by ``tail_d`` to ``zd`` (``A`` and ``D``) instead: the
+    kernel's truncation, L steps later, when the pixel is still live. ``tab``: the layer's
+    :func:`_target_table`."""
     cin, hin, win, cout, wout, stride, kw = g[0], g[1], g[2], g[3], g[5], g[6], g[7] % 1000
     cin_shift = g[8]
     tail = tail_a != 0.0
     n_spikes = spikes.shape[0]
-    u0, u1 = _reach(g, r0, r1)
     j = 0
     while j < n_spikes:
-        if not u0 <= spikes[j] < u1:  # no target in the band (no division to find that out)
-            j += 1
-            continue
         # spikes of one input pixel (adjacent in the lists layers emit) share their targets
         pix = spikes[j] >> cin_shift if cin_shift >= 0 else spikes[j] // cin
         first_unit = pix * cin
@@ -452,12 +404,11 @@ def _scatter(  # pragma: no cover
             j_end += 1
         iy = pix // win
         ix = pix - iy * win
-        oy0, oy1 = max(tab[iy], r0), min(tab[hin + iy], r1 - 1)
+        oy0, oy1 = tab[iy], tab[hin + iy]
         ox0, ox1, place = tab[2 * hin + ix], tab[2 * hin + win + ix], tab[2 * hin + 2 * win + ix]
         # the targets of one output row are adjacent: one span of states, one span of weights
         span = (ox1 - ox0 + 1) * cout
         for oy in range(oy0, oy1 + 1 if span > 0 else oy0):
-            row_work[oy] += span * (j_end - j)
             ky = iy - oy * stride
             pos = oy * wout + ox0
             n0 = z0 + pos * cout
@@ -526,11 +477,11 @@ def _advance_ring(st, z, mask, n0, n1, zn0, zo0, par):  # pragma: no cover
 
 @numba.njit(cache=True, nogil=True)
 def _layer_pass(
-    st, s0, z, zn, zo, last, p0, pos, n_pos, cout, t, horizon, par, mask, out, row_work, wout
+    st, s0, z, zn, zo, last, p0, pos, n_pos, cout, t, horizon, par, mask, out
 ):  # pragma: no cover
     """Advance every pixel ``pos..n_pos`` touched in the last ``horizon`` steps, in runs of
     adjacent pixels; write the flat indices of the neurons that fired to ``out``; returns their
-    number. ``row_work`` counts the neurons advanced per row (``wout`` pixels a row)."""
+    number."""
     n_spk = 0
     while pos < n_pos:
         age = t - last[p0 + pos]
@@ -546,7 +497,6 @@ def _layer_pass(
         while end < n_pos and t - last[p0 + end] < horizon:
             end += 1
         n0, n1 = s0 + pos * cout, s0 + end * cout
-        row_work[pos // wout] += n1 - n0
         if zn < 0:
             _advance(st, mask, n0, n1, par)
         else:
@@ -567,35 +517,30 @@ def _layer_pass(
 
 
 @numba.njit(cache=True, nogil=True)
-def _slot(ring_off, ring_len, ring_cap, cnt_off, b, t):  # pragma: no cover
-    """(start in the ring array, row of ``ring_cnt``) of ring ``b``'s slot for step ``t``."""
-    return ring_off[b] + (t % ring_len[b]) * ring_cap[b], cnt_off[b] + t % ring_len[b]
+def _spikes(ring, off, length, cap, ring_cnt, cnt_off, t):  # pragma: no cover
+    """Step ``t``'s spike list of a ring, as a view."""
+    base = off + (t % length) * cap
+    return ring[base : base + ring_cnt[cnt_off + t % length]]
 
 
 @numba.njit(cache=True, nogil=True)
-def _band(li, k, geo, bands):  # pragma: no cover
-    """Rows ``r0..r1`` and pixels ``pix0..pix1`` of stage ``k`` in layer ``li``."""
-    r0, r1 = bands[li, k], bands[li, k + 1]
-    return r0, r1, r0 * geo[li, 5], r1 * geo[li, 5]
-
-
-@numba.njit(cache=True, nogil=True)
-def _reach(g, r0, r1):  # pragma: no cover
-    """Input units ``u0..u1`` with a target in output rows ``r0..r1`` of a layer (geometry ``g``):
-    those of input rows ``r0 * stride .. (r1 - 1) * stride + kh - 1``."""
-    row = g[2] * g[0]
-    return r0 * g[6] * row, min(g[1], (r1 - 1) * g[6] + g[7] // 1000) * row
-
-
-@numba.njit(cache=True, nogil=True)
-def _input_stage(inp, offs, s_begin, s_end, t_base, ring, ring_off, ring_len, ring_cap, ring_cnt,
-                 cnt_off, seen, cycles):  # pragma: no cover  # fmt: skip
-    """Input events of each step, deduplicated (the input is binary), into ring 0 in arrival
-    order (sorting them cost more than the locality it bought the layer-1 scatter)."""
-    for s in range(s_begin, s_end):
+def _run_block(  # pragma: no cover
+    inp, offs, s_begin, s_end, l0, l1, t_base, out, geo, par, klen, tab, tab_off, w, w_off, st,
+    st_off, z,
+    z_off, last, pos_off, ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off, seen, fc, kout,
+    hring, spike_counts, cycles,
+):  # fmt: skip
+    n_layers = geo.shape[0]
+    mask = np.zeros(8 * (ring_cap[1:].max() // 8 + 1), dtype=np.uint8)
+    n_out = fc.shape[0]
+    lo = kout.shape[0]
+    # layer by layer over the block, so that a layer's state and weights stay in cache
+    for s in range(s_begin, s_end if l0 == 0 else s_begin):
+        # input events of this step, deduplicated (the input is binary), into ring 0 in arrival
+        # order (sorting them cost more than the locality it bought the layer-1 scatter)
         t = t_base + s
         c0 = _rdtsc()
-        r0, cnt = _slot(ring_off, ring_len, ring_cap, cnt_off, 0, t)
+        r0 = ring_off[0] + (t % ring_len[0]) * ring_cap[0]
         m = 0
         for e in range(offs[s], offs[s + 1]):
             idx = inp[e]
@@ -603,135 +548,74 @@ def _input_stage(inp, offs, s_begin, s_end, t_base, ring, ring_off, ring_len, ri
                 seen[idx] = t
                 ring[r0 + m] = idx
                 m += 1
-        ring_cnt[cnt, :] = 0
-        ring_cnt[cnt, 0] = m
-        cycles[-1, 0] += _rdtsc() - c0
-
-
-@numba.njit(cache=True, nogil=True)
-def _layer_stage(  # pragma: no cover
-    li, k, s_begin, s_end, t_base, t_cut, geo, par, klen, tab, tab_off, w, w_off, st, st_off, z,
-    z_off, last, pos_off, ring, ring_off, ring_len, ring_cap, ring_cnt, ring_seg, cnt_off,
-    spike_counts, cycles, mask, bands, row_work, row_off,
-):  # fmt: skip
-    """Stage ``k``'s rows of layer ``li`` over steps ``s_begin..s_end``; its spikes go to list k
-    of each slot of ring ``li + 1``, at the rows' first neuron (so the lists of a slot, one after
-    the other, are the layer's spikes in neuron order, wherever the cut). A stage without rows
-    in the layer runs nothing; the one with all of them also empties the other's lists."""
-    g = geo[li]
-    cout, cout_shift = g[3], g[9]
-    big_l, big_m = klen[li, 0], klen[li, 1]
-    s0, p0 = st_off[li], pos_off[li]
-    n_neurons = g[4] * g[5] * cout
-    tb = tab[tab_off[li] : tab_off[li + 1]]
-    r0, r1, pix0, pix1 = _band(li, k, geo, bands)
-    u0, u1 = _reach(g, r0, r1)
-    rw = row_work[row_off[li] : row_off[li + 1]]
-    n_lists = ring_cnt.shape[1]
-    for s in range(s_begin, s_end):
-        t = t_base + s
-        c0 = _rdtsc()
-        base, cnt = _slot(ring_off, ring_len, ring_cap, cnt_off, li, t)
-        if klen[li, 2]:  # synaptic input into map t of the ring, read back L steps later
-            zn = z_off[li] + (t % (big_l + 1)) * n_neurons
-            zo = z_off[li] + ((t + 1) % (big_l + 1)) * n_neurons
-            za, zd, zs = z, z, zn
-        else:
-            zn = zo = -1
-            za, zd, zs = st[0], st[1], s0
-        for j in range(n_lists):
-            spikes = ring[base + ring_seg[cnt, j] : base + ring_seg[cnt, j] + ring_cnt[cnt, j]]
-            if li > 0:  # a layer's spikes are in neuron order: only those of the band's reach
-                spikes = spikes[np.searchsorted(spikes, u0) : np.searchsorted(spikes, u1)]
-            _scatter(spikes, g, tb, w, w_off[li], za, zd, zs, last, p0, t, 0.0, 0.0, r0, r1, rw)
-        c1 = _rdtsc()
-        cycles[li, 0] += c1 - c0
-        if zn < 0 and t >= big_l:  # the same spikes L steps later, with the tail weights
-            base, cnt = _slot(ring_off, ring_len, ring_cap, cnt_off, li, t - big_l)
-            for j in range(n_lists):
-                spikes = ring[base + ring_seg[cnt, j] : base + ring_seg[cnt, j] + ring_cnt[cnt, j]]
+        ring_cnt[cnt_off[0] + t % ring_len[0]] = m
+        cycles[n_layers, 0] += _rdtsc() - c0
+    for li in range(l0, l1):
+        g = geo[li]
+        cout, cout_shift = g[3], g[9]
+        big_l, big_m = klen[li, 0], klen[li, 1]
+        s0, p0 = st_off[li], pos_off[li]
+        n_neurons = g[4] * g[5] * cout
+        tb = tab[tab_off[li] : tab_off[li + 1]]
+        for s in range(s_begin, s_end):
+            t = t_base + s
+            c0 = _rdtsc()
+            spikes = _spikes(ring, ring_off[li], ring_len[li], ring_cap[li], ring_cnt, cnt_off[li],
+                             t)  # fmt: skip
+            if klen[li, 2]:  # synaptic input into map t of the ring, read back L steps later
+                zn = z_off[li] + (t % (big_l + 1)) * n_neurons
+                zo = z_off[li] + ((t + 1) % (big_l + 1)) * n_neurons
+                _scatter(spikes, g, tb, w, w_off[li], z, z, zn, last, p0, t, 0.0, 0.0)
+            else:
+                zn = zo = -1
+                _scatter(spikes, g, tb, w, w_off[li], st[0], st[1], s0, last, p0, t, 0.0, 0.0)
+            c1 = _rdtsc()
+            cycles[li, 0] += c1 - c0
+            if zn < 0 and t >= big_l:  # the same spikes L steps later, with the tail weights
+                spikes = _spikes(ring, ring_off[li], ring_len[li], ring_cap[li], ring_cnt,
+                                 cnt_off[li], t - big_l)  # fmt: skip
                 _scatter(spikes, g, tb, w, w_off[li], st[0], st[1], s0, last, p0, t, par[li, 2],
-                         par[li, 3], r0, r1, rw)  # fmt: skip
-        c2 = _rdtsc()
-        cycles[li, 1] += c2 - c1
-        # refractory feedback of the rows' own spikes, one step and M steps ago: since the cut,
-        # in their own list (the other stage may be writing the others); before it, the rows may
-        # have been the other stage's, so every list (complete by then), selected by neuron
-        for lag in (1, big_m):
-            if t >= lag:
-                amp = par[li, 4] if lag == 1 else par[li, 6]
-                base, cnt = _slot(ring_off, ring_len, ring_cap, cnt_off, li + 1, t - lag)
-                own = t - lag >= t_cut
-                for j in range(k if own else 0, k + 1 if own else n_lists):
-                    first = base + ring_seg[cnt, j]
-                    for n in ring[first : first + ring_cnt[cnt, j]]:
-                        if pix0 * cout <= n < pix1 * cout:
-                            st[2, s0 + n] += amp
-                            if lag == 1:
-                                last[p0 + (n >> cout_shift if cout_shift >= 0 else n // cout)] = t
-        c3 = _rdtsc()
-        cycles[li, 2] += c3 - c2
-        base, cnt = _slot(ring_off, ring_len, ring_cap, cnt_off, li + 1, t)
-        first = pix0 * cout
-        n_spk = _layer_pass(
-            st, s0, z, zn, zo, last, p0, pix0, pix1, cout, t, max(big_l, big_m) + 1, par[li],
-            mask, ring[base + first : base + pix1 * cout], rw, g[5],
-        )  # fmt: skip
-        for j in range(n_lists):
-            if bands[li, j] == bands[li, j + 1]:
-                ring_cnt[cnt, j] = 0
-        ring_cnt[cnt, k] = n_spk
-        ring_seg[cnt, k] = first
-        spike_counts[li] += n_spk
-        cycles[li, 3] += _rdtsc() - c3
-
-
-@numba.njit(cache=True, nogil=True)
-def _readout_stage(s_begin, s_end, t_base, out, geo, ring, ring_off, ring_len, ring_cap, ring_cnt,
-                   ring_seg, cnt_off, fc, kout, hring, cycles):  # pragma: no cover  # fmt: skip
-    """Global average of the last layer's spikes -> dense -> psp (exact FIR), per step."""
-    n_layers = geo.shape[0]
-    n_out = fc.shape[0]
-    lo = kout.shape[0]
-    cout = geo[n_layers - 1, 3]
-    for s in range(s_begin, s_end):
+                         par[li, 3])  # fmt: skip
+            c2 = _rdtsc()
+            cycles[li, 1] += c2 - c1
+            # refractory feedback of this layer's own spikes, one step and M steps ago
+            for lag in (1, big_m):
+                if t >= lag:
+                    amp = par[li, 4] if lag == 1 else par[li, 6]
+                    own = _spikes(ring, ring_off[li + 1], ring_len[li + 1], ring_cap[li + 1],
+                                  ring_cnt, cnt_off[li + 1], t - lag)  # fmt: skip
+                    for n in own:
+                        st[2, s0 + n] += amp
+                        if lag == 1:
+                            last[p0 + (n >> cout_shift if cout_shift >= 0 else n // cout)] = t
+            c3 = _rdtsc()
+            cycles[li, 2] += c3 - c2
+            cnt = cnt_off[li + 1] + t % ring_len[li + 1]
+            obase = ring_off[li + 1] + (t % ring_len[li + 1]) * ring_cap[li + 1]
+            n_spk = _layer_pass(
+                st, s0, z, zn, zo, last, p0, 0, g[4] * g[5], cout, t, max(big_l, big_m) + 1,
+                par[li], mask, ring[obase : obase + ring_cap[li + 1]],
+            )  # fmt: skip
+            ring_cnt[cnt] = n_spk
+            spike_counts[li] += n_spk
+            cycles[li, 3] += _rdtsc() - c3
+    for s in range(s_begin, s_end if l1 == n_layers else s_begin):
         t = t_base + s
+        # -- readout: global average of the last layer's spikes -> dense -> psp (exact FIR)
         c0 = _rdtsc()
         hslot = t % lo
         for o in range(n_out):
             hring[hslot, o] = 0.0
-        base, cnt = _slot(ring_off, ring_len, ring_cap, cnt_off, n_layers, t)
-        for j in range(ring_cnt.shape[1]):
-            first = base + ring_seg[cnt, j]
-            for n in ring[first : first + ring_cnt[cnt, j]]:
-                ch = n % cout
-                for o in range(n_out):
-                    hring[hslot, o] += fc[o, ch]
+        cout = geo[n_layers - 1, 3]
+        slot = t % ring_len[n_layers]
+        base = ring_off[n_layers] + slot * ring_cap[n_layers]
+        for j in range(ring_cnt[cnt_off[n_layers] + slot]):
+            ch = ring[base + j] % cout
+            for o in range(n_out):
+                hring[hslot, o] += fc[o, ch]
         for o in range(n_out):
             acc = 0.0
-            for kk in range(min(lo, t + 1)):
-                acc += kout[kk] * hring[(t - kk) % lo, o]
+            for k in range(min(lo, t + 1)):
+                acc += kout[k] * hring[(t - k) % lo, o]
             out[s, o] = acc
-        cycles[-1, 1] += _rdtsc() - c0
-
-
-@numba.njit(cache=True, nogil=True)
-def _run_stage(  # pragma: no cover
-    inp, offs, s_begin, s_end, k, t_base, t_cut, out, geo, par, klen, tab, tab_off, w, w_off, st,
-    st_off, z, z_off, last, pos_off, ring, ring_off, ring_len, ring_cap, ring_cnt, ring_seg,
-    cnt_off, seen, fc, kout, hring, spike_counts, cycles, mask, bands, row_work, row_off,
-):  # fmt: skip
-    """Stage ``k`` of a block: the input (first stage), its rows of each layer, in order, and the
-    readout (last stage); with one stage, all of the network."""
-    if k == 0:
-        _input_stage(inp, offs, s_begin, s_end, t_base, ring, ring_off, ring_len, ring_cap,
-                     ring_cnt, cnt_off, seen, cycles)  # fmt: skip
-    for li in range(geo.shape[0]):
-        if bands[li, k] < bands[li, k + 1]:
-            _layer_stage(li, k, s_begin, s_end, t_base, t_cut, geo, par, klen, tab, tab_off, w,
-                         w_off, st, st_off, z, z_off, last, pos_off, ring, ring_off, ring_len,
-                         ring_cap, ring_cnt, ring_seg, cnt_off, spike_counts, cycles, mask, bands,
-                         row_work, row_off)  # fmt: skip
-    if k == bands.shape[1] - 2:
-        _readout_stage(s_begin, s_end, t_base, out, geo, ring, ring_off, ring_len, ring_cap,
-                       ring_cnt, ring_seg, cnt_off, fc, kout, hring, cycles)  # fmt: skip
+        cycles[n_layers, 1] += _rdtsc() - c0
