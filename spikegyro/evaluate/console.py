@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table as RichTable
 
+from spikegyro.evaluate.kinds import kind_table
 from spikegyro.evaluate.metrics import WINDOW_METRIC_MS
 from spikegyro.evaluate.report import PER_MS_LABEL, PER_WINDOW_LABEL, Table, fmt
 from spikegyro.events.io import atomic_path
@@ -43,7 +44,8 @@ def print_summary(
     start_ms: int = 50,
 ) -> None:
     """The headline metrics of each model entry (``name``, ``metrics``, ``window_metrics``) as
-    one terminal table, then the warnings. The full tables are in report.md/html."""
+    one terminal table, their metrics per scene kind where known (``per_scene_kind``), then the
+    warnings. The full tables are in report.md/html."""
     table = RichTable(title=escape(title))
     columns = ("model", "median rel. err.", "mean Eucl. err.", "RMSE")
     columns += (f"{window_label}: median rel.",)
@@ -59,6 +61,8 @@ def print_summary(
             fmt(w.get("median_relative_error")),
         )
     console.print(table)
+    if (kinds := kind_table(entries)) is not None:
+        console.print(console_table(kinds.caption, kinds))
     console.print(f'per ms over steps >= {start_ms}; mean Eucl. err. is the paper\'s "RMSE"')
     for w in warnings:
         console.print(f"[yellow]warning:[/] {escape(w)}")
