@@ -29,7 +29,7 @@ def console_table(title: str, table: Table) -> RichTable:
     short_window = f"per {WINDOW_METRIC_MS} ms win."
     for i, head in enumerate(table.header):
         head = head.replace(PER_MS_LABEL, "per ms").replace(PER_WINDOW_LABEL, short_window)
-        out.add_column(escape(head), justify="left" if i == 0 else "right")
+        out.add_column(escape(head), justify="left" if i == 0 else "right", no_wrap=i == 0)
     for row in table.rows:
         out.add_row(*(escape(c) for c in row))
     return out

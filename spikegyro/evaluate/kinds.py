@@ -74,8 +74,8 @@ def kind_table(entries: Sequence[Mapping[str, Any]]) -> Table | None:
     kinds = list(entries[0].get("per_scene_kind") or {}) if entries else []
     if not set(kinds) - {UNKNOWN_SCENE}:
         return None
-    header = ["scene kind", "model", "windows", "median rel. error", "mean Eucl. error [deg/s]"]
-    header += [f"{axis} MAE [deg/s]" for axis in AXES]
+    header = ["scene", "model", "windows", "median rel. error", "mean Eucl. error"]
+    header += [f"{axis} MAE" for axis in AXES]
     rows = []
     for kind in kinds:
         for entry in entries:
@@ -91,8 +91,8 @@ def kind_table(entries: Sequence[Mapping[str, Any]]) -> Table | None:
                 ]
             )
     return Table(
-        f"Per scene kind (steps >= {EVAL_START_STEP}): median relative error, mean Euclidean "
-        "error and per-axis mean absolute error",
+        f"Per scene kind (steps >= {EVAL_START_STEP}): median relative error; mean Euclidean "
+        "error and per-axis mean absolute error (MAE) in deg/s",
         header,
         rows,
     )
