@@ -24,7 +24,9 @@ from spikegyro.models.registry import build_model, save_checkpoint
 SENSOR = (64, 64)
 
 
-def _sequence(path: Path, rng: np.random.Generator, duration_ms: int, num_events: int):
+def _sequence(
+    path: Path, rng: np.random.Generator, duration_ms: int, num_events: int, **attrs: str
+):
     """Random events and a slowly varying rotation of a few 100 deg/s."""
     t = np.sort(rng.integers(0, duration_ms * 1000, num_events))
     events = EventArray.from_arrays(
@@ -33,7 +35,7 @@ def _sequence(path: Path, rng: np.random.Generator, duration_ms: int, num_events
     )  # fmt: skip
     gyro_t = np.arange(0, duration_ms * 1000 + 1, 1000)
     omega = np.radians(rng.normal(0, 150, 3)) + np.radians(30) * np.sin(gyro_t / 4e4)[:, None]
-    write_recording(path, Recording(events, GyroTrace.from_arrays(gyro_t, omega)))
+    write_recording(path, Recording(events, GyroTrace.from_arrays(gyro_t, omega), attrs))
 
 
 @pytest.fixture(scope="module")
@@ -42,8 +44,8 @@ def dataset(tmp_path_factory) -> Path:
     rng = np.random.default_rng(7)
     for i in range(2):
         _sequence(root / "train" / f"seq_{i:06d}.h5", rng, 200, 2000)
-    # Three 100 ms test windows; the last holds no events.
-    _sequence(root / "test" / "seq_000000.h5", rng, 200, 2000)
+    # Three 100 ms test windows, two of them of a sparse scene; the last holds no events.
+    _sequence(root / "test" / "seq_000000.h5", rng, 200, 2000, scene_kind="sparse")
     _sequence(root / "test" / "seq_000001.h5", rng, 100, 0)
     return root
 
@@ -76,7 +78,7 @@ def test_outputs_and_report_hold_every_figure_and_table(evaluated):
     # Every PNG is embedded, none is linked (the page is self-contained).
     assert page.count("data:image/png;base64,") == 2 + len(examples)
     assert not re.search(r'src="(?!data:)', page)
-    assert page.count("<table>") == 4  # overall, per axis, per bin, spikes
+    assert page.count("<table>") == 5  # overall, per axis, per bin, per scene kind, spikes
     for text in ("SNN-6", "Mean", "0.26", "66.3", "paper", "[500, inf)"):
         assert text in page, text
     md = (out / "report.md").read_text()
@@ -95,6 +97,21 @@ def test_mean_predictor_is_the_training_mean_and_scored_beside_the_model(evaluat
     gt = np.load(Path(evaluated[0]) / "predictions.npz")["gt"][:, 50:]
     err = np.degrees(np.linalg.norm(gt - expected, axis=-1))
     assert result["mean"]["metrics"]["mean_euclidean_error_deg_s"] == pytest.approx(err.mean())
+
+
+def test_metrics_per_scene_kind(evaluated):
+    out, result = evaluated
+    npz = np.load(out / "predictions.npz")
+    for key in ("model", "mean"):
+        kinds = result[key]["per_scene_kind"]
+        assert list(kinds) == ["sparse", "unknown"]
+        assert [kinds[k]["n_windows"] for k in kinds] == [2, 1]
+        pred = (
+            npz["pred"] if key == "model" else np.broadcast_to(npz["mean_omega"], npz["gt"].shape)
+        )
+        err = np.degrees(np.abs(pred[2, 50:] - npz["gt"][2, 50:])).mean(axis=0)
+        assert list(kinds["unknown"]["mean_abs_error_deg_s"].values()) == pytest.approx(err)
+    assert "Per scene kind" in (out / "report.md").read_text()
 
 
 def test_window_without_events_and_empty_bins_are_reported(evaluated):

@@ -13,12 +13,14 @@ from typer.testing import CliRunner
 
 from spikegyro.cli import app
 from spikegyro.errors import InputError
-from spikegyro.events.io import OFFICIAL_KEYS, read_recording
+from spikegyro.events.io import OFFICIAL_KEYS, read_recording, write_recording
 from spikegyro.sim.camera import Camera
 from spikegyro.sim.dataset import (
+    SCENE_KINDS,
     SimConfig,
     export_official,
     generate_dataset,
+    scene_kind,
     sequence_path,
     simulate_sequence,
     split_counts,
@@ -92,6 +94,28 @@ def test_sequences_depend_on_split_and_index_only():
     np.testing.assert_array_equal(a.events.t, b.events.t)
     assert a.attrs["scene"] == b.attrs["scene"]
     assert a.attrs["r0"] != c.attrs["r0"]
+
+
+def test_sequences_record_their_scene_kind_which_older_files_derive_from_the_scene(tmp_path):
+    # Events and ground truth of the ideal sensor are pinned bit for bit by
+    # test_sim_sensor.test_ideal_sensor_reproduces_the_files_made_before_sensor_presets.
+    expected = {"ideal": {"photo", "procedural"}, "davis240c": set(SCENE_KINDS)}
+    for sensor, kinds in expected.items():
+        config = SimConfig(duration_ms=100, camera=Camera.scaled(48, 36), sensor=sensor)
+        seen = set()
+        for index in range(6):
+            rec = simulate_sequence(config, index, seed=3, split="train")
+            older = {k: v for k, v in rec.attrs.items() if k != "scene_kind"}
+            assert scene_kind(older) == rec.attrs["scene_kind"] == scene_kind(rec.attrs)
+            seen.add(rec.attrs["scene_kind"])
+        assert seen == kinds, sensor
+    path = write_recording(tmp_path / "seq.h5", rec)
+    assert read_recording(path).attrs["scene_kind"] == rec.attrs["scene_kind"]
+    made_here = {"generator": "spikegyro 0.1.0"}
+    assert scene_kind({**made_here, "scene": "forest_slope"}) == "photo"
+    assert scene_kind({**made_here, "scene": "sparse/test/4"}) == "sparse"
+    assert scene_kind({**made_here, "scene": "other/test/4"}) == "unknown"
+    assert scene_kind({"scene": "unit-test"}) == scene_kind({}) == "unknown"
 
 
 def test_splits_are_disjoint_by_panorama(tmp_path):

@@ -33,6 +33,7 @@ from spikegyro.evaluate import figures, metrics
 from spikegyro.evaluate.bins import SPEED_BIN_EDGES_DEG_S, bin_labels, empty_bins, per_bin_metrics
 from spikegyro.evaluate.compare import METRICS_FORMAT, compare_runs, console_summary, table_one
 from spikegyro.evaluate.console import print_summary, write_json
+from spikegyro.evaluate.kinds import kind_table, per_kind_metrics, window_scene_kinds
 from spikegyro.evaluate.report import (
     Block,
     FigureRef,
@@ -119,16 +120,17 @@ def _subject(
         "method": "checkpoint",
         "source": str(checkpoint),
         "checkpoint_model": payload.get("model"),
+        "input": spec.as_dict(),
     }
-    info["input"] = spec.as_dict()
     return (net, payload), spec, name, info
 
 
-def _model_results(pred: np.ndarray, gt: np.ndarray) -> dict[str, Any]:
+def _model_results(pred: np.ndarray, gt: np.ndarray, kinds: list[str]) -> dict[str, Any]:
     return {
         "metrics": metrics.summary(pred, gt),
         "window_metrics": metrics.window_metrics(pred, gt),
         "per_bin": per_bin_metrics(pred, gt),
+        "per_scene_kind": per_kind_metrics(pred, gt, kinds),
     }
 
 
@@ -291,8 +293,7 @@ def run_evaluation(
             f"{metrics.WINDOW_METRIC_MS} ms windows of the per-window metrics."
         )
     picks = examples if examples is not None else choose_examples(windows, num_examples)
-    bad = [i for i in picks if not 0 <= i < len(windows)]
-    if bad:
+    if bad := [i for i in picks if not 0 <= i < len(windows)]:
         raise InputError(f"--example {bad[0]}: there are only {len(windows)} windows (0-based).")
     num_events = np.array([len(w.events) for w in windows], dtype=np.int64)
     if (num_events == 0).any():
@@ -305,9 +306,9 @@ def run_evaluation(
     pred = _predict(model_spec, windows, batch_size, device, console).astype(np.float64)
     pred, nonfinite = _finite(pred, name, warnings)
     mean_omega, mean_source = _mean_omega(data_dir, warnings)
-    mean_pred = mean_predictions(mean_omega, *gt.shape[:2])
+    kinds = window_scene_kinds(windows)
 
-    model_res = {"name": name, **model_info, **_model_results(pred, gt)}
+    model_res = {"name": name, **model_info, **_model_results(pred, gt, kinds)}
     model_res["nonfinite_predictions"] = nonfinite
     if model_spec is not None and hasattr(model_spec[0], "forward_with_spikes"):
         busy = [w for w in windows if len(w.events)][:spike_windows]
@@ -325,10 +326,9 @@ def run_evaluation(
         "method": "mean",
         "source": mean_source,
         "omega_rad_s": mean_omega.tolist(),
-        **_model_results(mean_pred, gt),
+        **_model_results(mean_predictions(mean_omega, *gt.shape[:2]), gt, kinds),
     }
-    empty = empty_bins(model_res["per_bin"])
-    if empty:
+    if empty := empty_bins(model_res["per_bin"]):
         warnings.append(f"no evaluated step in speed bin(s) {', '.join(empty)} deg/s; left empty.")
     if model_res["metrics"]["median_relative_error"] is None:
         warnings.append("every true speed is under 1 deg/s: the relative error is undefined.")
@@ -365,8 +365,7 @@ def run_evaluation(
     write_json(out_dir / "metrics.json", result)
     example_refs = _example_figures(out_dir, windows, pred, picks, name)
     _evaluation_report(out_dir, result, example_refs)
-    title = f"{result['data']['dir']} / {result['data']['split']}"
-    print_summary(console, title, [result["model"], result["mean"]], result["warnings"])
+    print_summary(console, f"{data_dir} / {split}", [model_res, mean_res], warnings)
     console.print(f"wrote {out_dir}/metrics.json, predictions.npz, report.html, report.md")
     return result
 
@@ -408,6 +407,7 @@ def _evaluation_report(out_dir: Path, result: dict[str, Any], examples: list[Fig
             "axes.png",
         ),
     ]
+    blocks += ["## Per scene kind", table] if (table := kind_table([model, mean])) else []
     if "spikes" in model:
         blocks += ["## Spiking activity", spike_table(model["spikes"])]
     if examples:

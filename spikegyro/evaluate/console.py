@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table as RichTable
 
+from spikegyro.evaluate.kinds import kind_table
 from spikegyro.evaluate.metrics import WINDOW_METRIC_MS
 from spikegyro.evaluate.report import PER_MS_LABEL, PER_WINDOW_LABEL, Table, fmt
 from spikegyro.events.io import atomic_path
@@ -28,7 +29,7 @@ def console_table(title: str, table: Table) -> RichTable:
     short_window = f"per {WINDOW_METRIC_MS} ms win."
     for i, head in enumerate(table.header):
         head = head.replace(PER_MS_LABEL, "per ms").replace(PER_WINDOW_LABEL, short_window)
-        out.add_column(escape(head), justify="left" if i == 0 else "right")
+        out.add_column(escape(head), justify="left" if i == 0 else "right", no_wrap=i == 0)
     for row in table.rows:
         out.add_row(*(escape(c) for c in row))
     return out
@@ -43,7 +44,8 @@ def print_summary(
     start_ms: int = 50,
 ) -> None:
     """The headline metrics of each model entry (``name``, ``metrics``, ``window_metrics``) as
-    one terminal table, then the warnings. The full tables are in report.md/html."""
+    one terminal table, their metrics per scene kind where known (``per_scene_kind``), then the
+    warnings. The full tables are in report.md/html."""
     table = RichTable(title=escape(title))
     columns = ("model", "median rel. err.", "mean Eucl. err.", "RMSE")
     columns += (f"{window_label}: median rel.",)
@@ -59,6 +61,8 @@ def print_summary(
             fmt(w.get("median_relative_error")),
         )
     console.print(table)
+    if (kinds := kind_table(entries)) is not None:
+        console.print(console_table(kinds.caption, kinds))
     console.print(f'per ms over steps >= {start_ms}; mean Eucl. err. is the paper\'s "RMSE"')
     for w in warnings:
         console.print(f"[yellow]warning:[/] {escape(w)}")

@@ -248,12 +248,22 @@ def _hdf5_sensor(f: h5py.File, sensor: tuple[int, int] | None) -> tuple[int, int
     return DEFAULT_SENSOR
 
 
-def _read_hdf5(path: Path, sensor: tuple[int, int] | None) -> Recording:
+def _open_hdf5(path: str | os.PathLike) -> h5py.File:
     try:
-        f = h5py.File(path, "r")
+        return h5py.File(path, "r")
     except OSError as exc:
         raise InputError(f"{path}: not a readable HDF5 file ({exc}).") from None
-    with f:
+
+
+def read_hdf5_attrs(path: str | os.PathLike) -> dict[str, Any]:
+    """The attributes of an HDF5 event file as :func:`read_recording` gives them, without
+    reading its arrays."""
+    with _open_hdf5(path) as f:
+        return _h5_attrs(f)
+
+
+def _read_hdf5(path: Path, sensor: tuple[int, int] | None) -> Recording:
+    with _open_hdf5(path) as f:
         _require_keys(f, ("ev_xy", "ev_ts", "ev_pol"), path)
         xy = f["ev_xy"][()]
         if xy.ndim != 2 or xy.shape[1] != 2:
@@ -266,8 +276,12 @@ def _read_hdf5(path: Path, sensor: tuple[int, int] | None) -> Recording:
         if "ang_xyz" in f or "ang_ts" in f:
             _require_keys(f, ("ang_xyz", "ang_ts"), path)
             gyro = GyroTrace.from_arrays(f["ang_ts"][()], f["ang_xyz"][()], source=str(path))
-        attrs = {k: _from_h5_attr(v) for k, v in f.attrs.items()}
+        attrs = _h5_attrs(f)
     return Recording(events=events, gyro=gyro, attrs=attrs)
+
+
+def _h5_attrs(f: h5py.File) -> dict[str, Any]:
+    return {k: _from_h5_attr(v) for k, v in f.attrs.items()}
 
 
 def _from_h5_attr(value: Any) -> Any:

@@ -14,7 +14,9 @@ Scenes are split **by panorama**: the bundled photographs 10 train / 1 val / 1 t
 A fraction of sequences (``procedural_fraction``) uses a procedural panorama generated from the
 sequence's own seed stream, which is distinct for every (split, index), so no procedural scene is
 shared across splits. Photographs get fine 1/f detail (``detail_strength``) and every sequence
-a uniformly random start orientation, i.e. a random orientation of the panorama.
+a uniformly random start orientation, i.e. a random orientation of the panorama. Each file names
+its scene (attribute ``scene``) and the scene's kind (``scene_kind``, one of :data:`SCENE_KINDS`;
+:func:`scene_kind` derives it for files written before that attribute existed).
 
 Sensor presets (``SimConfig.sensor``, :mod:`spikegyro.sim.sensor`): ``ideal`` is the paper's
 simulator and gives exactly the files it always gave; ``davis240c`` draws a real sensor per
@@ -28,7 +30,7 @@ from __future__ import annotations
 
 import json
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, astuple, dataclass, field, replace
 from functools import lru_cache
@@ -60,6 +62,10 @@ from spikegyro.sim.trajectory import TrajectoryConfig, random_trajectory
 
 SPLITS = ("train", "val", "test")
 WINDOW_US = 100_000
+SCENE_KINDS = ("sparse", "office", "photo", "procedural")
+"""The scene kinds, in the order of :attr:`spikegyro.sim.sensor.SensorPreset.scenes`; a sequence
+file names its kind in the attribute ``scene_kind``."""
+UNKNOWN_SCENE = "unknown"
 
 
 @dataclass(frozen=True)
@@ -155,14 +161,16 @@ def simulate_sequence(config: SimConfig, index: int, seed: int, split: str = "tr
         floor = config.events.min_contrast
         c_on, c_off = np.maximum(rng.normal(config.contrast_mean, config.contrast_std, 2), floor)
         if not photos or rng.random() < config.procedural_fraction:
+            kind = "procedural"
             panorama = procedural_panorama(rng, width, name=f"procedural/{split}/{index}")
         else:
+            kind = "photo"
             photo = _photo(str(photos[int(rng.integers(len(photos)))]))
             panorama = add_detail(photo, rng, config.detail_strength, width)
     else:
         sensor = preset.draw(rng, config.camera.width / 240)
         c_on, c_off = sensor.contrast_on, sensor.contrast_off
-        panorama = _sensor_scene(preset, rng, photos, width, f"{split}/{index}")
+        kind, panorama = _sensor_scene(preset, rng, photos, width, f"{split}/{index}")
     duration_s = config.duration_ms / 1000.0
     trajectory = random_trajectory(rng, duration_s, config.trajectory)
     events_config = replace(config.events, contrast_on=float(c_on), contrast_off=float(c_off))
@@ -176,6 +184,7 @@ def simulate_sequence(config: SimConfig, index: int, seed: int, split: str = "tr
     windows = np.bincount(t[t < n_windows * WINDOW_US] // WINDOW_US, minlength=n_windows)
     attrs = {
         **rec.attrs,
+        "scene_kind": kind,
         "contrast_on": float(c_on),
         "contrast_off": float(c_off),
         "seed": int(seed),
@@ -192,20 +201,39 @@ def simulate_sequence(config: SimConfig, index: int, seed: int, split: str = "tr
 
 def _sensor_scene(
     preset: SensorPreset, rng: np.random.Generator, photos: list[Path], width: int, name: str
-) -> Panorama:
-    """A scene of the preset's mix: sparse shapes, office, photograph or procedural."""
+) -> tuple[str, Panorama]:
+    """A scene of the preset's mix, and its kind: sparse shapes, office, photograph or
+    procedural (:data:`SCENE_KINDS`)."""
     weights = np.array(preset.scenes, dtype=np.float64)
     if not photos:
-        weights[2] = 0.0
-    kind = int(rng.choice(4, p=weights / weights.sum()))
-    if kind == 0:
-        return sparse_panorama(rng, width, name=f"sparse/{name}")
-    if kind == 1:
-        return office_panorama(rng, width, name=f"office/{name}")
-    if kind == 2:
+        weights[SCENE_KINDS.index("photo")] = 0.0
+    kind = SCENE_KINDS[int(rng.choice(len(SCENE_KINDS), p=weights / weights.sum()))]
+    if kind == "sparse":
+        return kind, sparse_panorama(rng, width, name=f"sparse/{name}")
+    if kind == "office":
+        return kind, office_panorama(rng, width, name=f"office/{name}")
+    if kind == "photo":
         photo = _photo(str(photos[int(rng.integers(len(photos)))]))
-        return add_detail(photo, rng, rng.uniform(*preset.detail_strength), width)
-    return procedural_panorama(rng, width, name=f"procedural/{name}")
+        return kind, add_detail(photo, rng, rng.uniform(*preset.detail_strength), width)
+    return kind, procedural_panorama(rng, width, name=f"procedural/{name}")
+
+
+def scene_kind(attrs: Mapping[str, Any]) -> str:
+    """The scene kind (:data:`SCENE_KINDS`) of a sequence file's attributes, else ``unknown``.
+
+    Files written before the ``scene_kind`` attribute existed name their generated scenes
+    ``procedural/...``, ``sparse/...`` or ``office/...`` (attribute ``scene``) and their
+    photographs by file stem, which holds no ``/``; files not made by ``spikegyro simulate``
+    (real recordings) are ``unknown``.
+    """
+    kind = attrs.get("scene_kind")
+    if kind in SCENE_KINDS:
+        return str(kind)
+    scene = attrs.get("scene")
+    if not isinstance(scene, str) or not str(attrs.get("generator", "")).startswith("spikegyro"):
+        return UNKNOWN_SCENE
+    prefix = scene.split("/", 1)[0] if "/" in scene else "photo"
+    return prefix if prefix in SCENE_KINDS else UNKNOWN_SCENE
 
 
 def _sensor_recording(
