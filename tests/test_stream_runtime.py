@@ -90,6 +90,18 @@ def test_two_thread_pipeline_equals_one_thread(spec, stream, block):
     assert 1 <= piped._split() < len(spec.layers)
 
 
+def test_the_split_may_move_both_ways_within_a_call(spec, stream, monkeypatch):
+    # layers handed to the second stage at once, and taken back after waiting for it
+    index, offsets = stream
+    expected = StreamingSNN(spec).run(index, offsets)
+    piped = StreamingSNN(spec, threads=2, block_steps=2)
+    splits = iter([1, 2, 2, 1, 2, 1, 1, 2] * 20)
+    asked = []
+    monkeypatch.setattr(piped, "_split", lambda cycles=None: asked.append(1) or next(splits))
+    np.testing.assert_array_equal(piped.run(index, offsets), expected)
+    assert len(asked) > 8  # the call's own split, then one every RESPLIT_BLOCKS blocks
+
+
 def test_pipeline_balances_the_profiled_work(spec):
     piped = StreamingSNN(spec, threads=2)
     piped._cycles[:] = 0

@@ -310,25 +310,39 @@ class StreamingSNN:
         )  # fmt: skip
 
     def _pipeline(self, inp, offs, out, edges: list[int], split: int) -> None:
-        """Layers ``< split`` run block b + 1 on this thread while the rest run block b."""
+        """Layers ``< split`` run block b + 1 on this thread while the rest run block b.
+
+        Every :data:`RESPLIT_BLOCKS` blocks the split is set again from the work of those blocks.
+        The first stage may give layers to the second at once (their state is a block ahead); to
+        take layers back it first waits for the second stage to finish the block before.
+        """
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="snn-stage2")
         n_layers = len(self.spec.layers)
         self._block(inp, offs, out, edges[0], edges[1], 0, split)
+        seen = self._cycles.copy()
         for b in range(1, len(edges)):
-            later = self._pool.submit(
+            later = self._pool.submit(  # block b - 1, with the split its first half ran with
                 self._block, inp, offs, out, edges[b - 1], edges[b], split, n_layers
             )
             try:
                 if b + 1 < len(edges):
+                    if b % RESPLIT_BLOCKS == 0:
+                        new = self._split(self._cycles - seen)
+                        seen = self._cycles.copy()
+                        if new > split:
+                            later.result()
+                        split = new
                     self._block(inp, offs, out, edges[b], edges[b + 1], 0, split)
             finally:
                 later.result()
 
-    def _split(self) -> int:
-        """First layer of the pipeline's second stage: balances the work profiled so far (the
-        neuron counts before any profile exists)."""
-        cycles = (self._cycles + self._cycles_before).astype(np.float64)
+    def _split(self, cycles: np.ndarray | None = None) -> int:
+        """First layer of the pipeline's second stage: balances the work in ``cycles`` (default:
+        profiled so far in every recording; the neuron counts before any profile exists)."""
+        if cycles is None:
+            cycles = self._cycles + self._cycles_before
+        cycles = cycles.astype(np.float64)
         per_layer = cycles[:-1].sum(axis=1)
         per_layer[0] += cycles[-1, 0]  # input binning runs with layer 1, the readout with the last
         per_layer[-1] += cycles[-1, 1]
@@ -336,6 +350,10 @@ class StreamingSNN:
             per_layer = (self._st_off[1:] - self._st_off[:-1]).astype(np.float64)
         first = np.cumsum(per_layer)[:-1]
         return int(np.argmin(np.maximum(first, per_layer.sum() - first))) + 1
+
+
+RESPLIT_BLOCKS = 8
+"""Blocks between two settings of the pipeline's split within a call (128 ms at 16 ms)."""
 
 
 @intrinsic
