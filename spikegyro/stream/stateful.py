@@ -312,7 +312,8 @@ class StreamingSNN:
     def _pipeline(self, inp, offs, out, edges: list[int], split: int) -> None:
         """Layers ``< split`` run block b + 1 on this thread while the rest run block b.
 
-        Every :data:`RESPLIT_BLOCKS` blocks the split is set again from the work of those blocks.
+        After 2 and 4 blocks, then every :data:`RESPLIT_BLOCKS`, the split is set again from the
+        work done since the last setting.
         The first stage may give layers to the second at once (their state is a block ahead); to
         take layers back it first waits for the second stage to finish the block before.
         """
@@ -327,7 +328,7 @@ class StreamingSNN:
             )
             try:
                 if b + 1 < len(edges):
-                    if b % RESPLIT_BLOCKS == 0:
+                    if b in (2, 4) or b % RESPLIT_BLOCKS == 0:  # early on: a new scene
                         new = self._split(self._cycles - seen)
                         seen = self._cycles.copy()
                         if new > split:
