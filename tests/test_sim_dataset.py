@@ -118,6 +118,28 @@ def test_sequences_record_their_scene_kind_which_older_files_derive_from_the_sce
     assert scene_kind({"scene": "unit-test"}) == scene_kind({}) == "unknown"
 
 
+def test_a_scene_mix_chooses_the_kinds_and_leaves_the_sensor_draws_alone():
+    base = SimConfig(duration_ms=100, camera=Camera.scaled(48, 36), sensor="davis240c")
+    only = {kind: SimConfig(**{**base.__dict__, "scene_mix": tuple(float(k == kind)
+                                                                   for k in SCENE_KINDS)})
+            for kind in ("sparse", "office")}  # fmt: skip
+    for index in range(3):
+        default = simulate_sequence(base, index, seed=3, split="train")
+        for kind, config in only.items():
+            rec = simulate_sequence(config, index, seed=3, split="train")
+            assert rec.attrs["scene_kind"] == kind
+            # the scene is drawn with the same random numbers: the sensor's draws are unchanged
+            assert rec.attrs["contrast_on"] == default.attrs["contrast_on"]
+            assert rec.attrs["sensor_calib"] == default.attrs["sensor_calib"]
+    assert SimConfig.from_dict(only["office"].to_dict()) == only["office"]
+    with pytest.raises(InputError, match="needs a sensor preset"):
+        SimConfig(scene_mix=(1, 0, 0, 0))
+    with pytest.raises(InputError, match="4 weights"):
+        SimConfig(sensor="davis240c", scene_mix=(1, 0, 0))
+    with pytest.raises(InputError, match="not all 0"):
+        SimConfig(sensor="davis240c", scene_mix=(0, 0, 0, 0))
+
+
 def test_splits_are_disjoint_by_panorama(tmp_path):
     bundled = split_panoramas(bundled_panorama_paths())
     assert [len(bundled[s]) for s in ("train", "val", "test")] == [10, 1, 1]

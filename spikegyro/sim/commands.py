@@ -57,6 +57,17 @@ def _camera(width, height, fx, fy, cx, cy) -> Camera:
     )
 
 
+def _weights(text: str) -> tuple[float, ...]:
+    """Comma-separated numbers, e.g. ``--scene-mix 0.4,0.25,0.2,0.15``."""
+    try:
+        return tuple(float(w) for w in text.split(","))
+    except ValueError:
+        raise InputError(
+            f"--scene-mix {text}: give comma-separated numbers, e.g. 0.4,0.25,0.2,0.15 "
+            "(sparse, office, photo, procedural)."
+        ) from None
+
+
 def simulate_dataset(
     out: Path = typer.Option(..., "--out", help="Dataset folder (created; resumed if present)."),
     sequences: int = typer.Option(..., "--sequences", min=1, help="Sequences over all splits."),
@@ -85,6 +96,12 @@ def simulate_dataset(
         "(the options below); 'davis240c' draws thresholds, noise, hot pixels, bandwidth, lens "
         "and the scene mix per sequence (docs/notes/sensor.md) and ignores the threshold, "
         "noise, --procedural-fraction and --detail options.",
+    ),
+    scene_mix: str = typer.Option(
+        None,
+        "--scene-mix",
+        help="With a sensor preset: weights of the scene kinds sparse,office,photo,procedural "
+        "(e.g. 0.4,0.25,0.2,0.15) instead of the preset's.",
     ),
     contrast_mean: float = typer.Option(0.45, help="Mean contrast threshold (log units)."),
     contrast_std: float = typer.Option(0.05, help="Per-sequence threshold spread."),
@@ -122,6 +139,7 @@ def simulate_dataset(
         procedural_fraction=procedural_fraction,
         detail_strength=detail,
         sensor=sensor,
+        scene_mix=None if scene_mix is None else _weights(scene_mix),
     )
     simulate_with_progress(
         out,

@@ -85,6 +85,8 @@ class SimConfig:
         val_fraction, test_fraction: share of sequences (and of folder panoramas) per split.
         sensor: sensor preset, ``ideal`` (the settings above) or ``davis240c`` (drawn per
             sequence; replaces the thresholds, noise, scene mix and detail strength above).
+        scene_mix: weights of the scene kinds (:data:`SCENE_KINDS`: sparse, office, photo,
+            procedural) instead of the sensor preset's; None keeps the preset's. Presets only.
     """
 
     duration_ms: int = 500
@@ -99,6 +101,23 @@ class SimConfig:
     val_fraction: float = 0.05
     test_fraction: float = 0.05
     sensor: str = "ideal"
+    scene_mix: tuple[float, float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.scene_mix is None:
+            return
+        mix = tuple(float(w) for w in self.scene_mix)
+        if len(mix) != len(SCENE_KINDS) or min(mix) < 0 or sum(mix) <= 0:
+            raise InputError(
+                f"scene mix {self.scene_mix}: give {len(SCENE_KINDS)} weights >= 0 "
+                f"({', '.join(SCENE_KINDS)}), not all 0."
+            )
+        if self.sensor == "ideal":
+            raise InputError(
+                "a scene mix needs a sensor preset (--sensor davis240c); the ideal sensor "
+                "draws photographs and procedural scenes (--procedural-fraction)."
+            )
+        object.__setattr__(self, "scene_mix", mix)
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-serialisable dict (round-trips through :meth:`from_dict`)."""
@@ -111,6 +130,8 @@ class SimConfig:
         data["camera"] = Camera(**data["camera"])
         data["trajectory"] = TrajectoryConfig(**data["trajectory"])
         data["events"] = EventSimConfig(**data["events"])
+        if data.get("scene_mix") is not None:
+            data["scene_mix"] = tuple(data["scene_mix"])
         return cls(**data)
 
     def panorama_splits(self) -> dict[str, list[Path]]:
@@ -170,7 +191,8 @@ def simulate_sequence(config: SimConfig, index: int, seed: int, split: str = "tr
     else:
         sensor = preset.draw(rng, config.camera.width / 240)
         c_on, c_off = sensor.contrast_on, sensor.contrast_off
-        kind, panorama = _sensor_scene(preset, rng, photos, width, f"{split}/{index}")
+        mix = config.scene_mix or preset.scenes
+        kind, panorama = _sensor_scene(preset, mix, rng, photos, width, f"{split}/{index}")
     duration_s = config.duration_ms / 1000.0
     trajectory = random_trajectory(rng, duration_s, config.trajectory)
     events_config = replace(config.events, contrast_on=float(c_on), contrast_off=float(c_off))
@@ -200,13 +222,21 @@ def simulate_sequence(config: SimConfig, index: int, seed: int, split: str = "tr
 
 
 def _sensor_scene(
-    preset: SensorPreset, rng: np.random.Generator, photos: list[Path], width: int, name: str
+    preset: SensorPreset,
+    mix: tuple[float, ...],
+    rng: np.random.Generator,
+    photos: list[Path],
+    width: int,
+    name: str,
 ) -> tuple[str, Panorama]:
-    """A scene of the preset's mix, and its kind: sparse shapes, office, photograph or
-    procedural (:data:`SCENE_KINDS`)."""
-    weights = np.array(preset.scenes, dtype=np.float64)
+    """A scene drawn with the weights ``mix``, and its kind: sparse shapes, office, photograph
+    or procedural (:data:`SCENE_KINDS`)."""
+    weights = np.array(mix, dtype=np.float64)
     if not photos:
         weights[SCENE_KINDS.index("photo")] = 0.0
+        if not weights.any():
+            raise InputError(f"scene {name}: the scene mix asks only for photographs, and this "
+                             "split has none; give other kinds some weight.")  # fmt: skip
     kind = SCENE_KINDS[int(rng.choice(len(SCENE_KINDS), p=weights / weights.sum()))]
     if kind == "sparse":
         return kind, sparse_panorama(rng, width, name=f"sparse/{name}")
