@@ -18,6 +18,7 @@ from scipy.ndimage import gaussian_filter
 from typer.testing import CliRunner
 
 from spikegyro.cli import app
+from spikegyro.evaluate.compare import training_info
 from spikegyro.events.io import write_recording
 from spikegyro.models.registry import build_model, load_checkpoint
 from spikegyro.sim.camera import Camera
@@ -127,10 +128,24 @@ def test_run_writes_its_files_and_resumes_to_the_same_state(dataset, tmp_path):
     with open(tmp_path / "b" / "log.csv", newline="") as f:
         assert [int(r["step"]) for r in csv.DictReader(f)] == [1, 2, 3, 4]
 
-    # --init starts from a checkpoint's weights (lr 0 keeps them)
+    # --init starts from a checkpoint's weights (lr 0 keeps them) and counts its training on:
+    # the report's steps and minutes add the runs a checkpoint was continued from
     init = tiny_config(dataset, tmp_path / "c", init=str(run / "last.pt"), lr=0.0, iterations=1)
     train(replace(init, val_every=1), progress=False)
     assert_same_weights(run / "last.pt", tmp_path / "c" / "last.pt")
+    _, again = load_checkpoint(tmp_path / "c" / "last.pt")
+    before = again["extra"]["before"]
+    assert before == {"steps": 4, "elapsed_s": payload["extra"]["elapsed_s"]}
+    info = training_info(again)
+    assert info["steps"] == 5
+    assert info["minutes"] * 60 == pytest.approx(before["elapsed_s"] + again["extra"]["elapsed_s"])
+    chained = tiny_config(dataset, tmp_path / "d", init=str(tmp_path / "c" / "last.pt"),
+                          lr=0.0, iterations=2, val_every=1)  # fmt: skip
+    train(replace(chained, iterations=1), progress=False)
+    train(chained, resume=True, progress=False)  # a resumed run keeps what came before it
+    _, third = load_checkpoint(tmp_path / "d" / "last.pt")
+    assert third["extra"]["step"] == 2 and training_info(third)["steps"] == 4 + 1 + 2
+    assert training_info(payload)["steps"] == 4  # a run from scratch: its own steps
 
     # an snn6 checkpoint starts an snn6-grid run with the readout spread over the cells
     grid = tiny_config(dataset, tmp_path / "g", model="snn6-grid", model_kwargs={"grid": [1, 2]},

@@ -41,7 +41,7 @@ from spikegyro.evaluate.report import (
     paper_row,
     write_report,
 )
-from spikegyro.models.registry import build_model, read_checkpoint
+from spikegyro.models.registry import build_model, read_checkpoint, training_before
 from spikegyro.train.data import InputSpec
 
 METRICS_FORMAT = "spikegyro-metrics/1"
@@ -75,18 +75,20 @@ def _checkpoint(entry: dict[str, Any]) -> dict[str, Any] | None:
 
 
 def training_info(payload: dict[str, Any] | None) -> dict[str, Any]:
-    """Steps, wall-clock minutes and device of the run that wrote a checkpoint (None: unknown).
+    """Steps, wall-clock minutes and device of the training behind a checkpoint (None: unknown).
 
-    ``steps`` is the checkpoint's step (a run continued with ``--init`` counts from its own
-    start); ``device`` is the one the run's configuration named, None for ``auto``.
+    ``steps`` and ``minutes`` add the checkpoint's own run and the runs it was continued from
+    with ``--init`` (their totals are in ``extra["before"]``); ``device`` is the one the run's
+    configuration named, None for ``auto``.
     """
     extra = (payload or {}).get("extra", {})
     config = extra.get("config") or {}
     device = config.get("device")
-    elapsed = extra.get("elapsed_s")
+    before = training_before(payload)
+    step, elapsed = extra.get("step"), extra.get("elapsed_s")
     return {
-        "steps": extra.get("step"),
-        "minutes": None if elapsed is None else float(elapsed) / 60.0,
+        "steps": None if step is None else int(step) + before["steps"],
+        "minutes": None if elapsed is None else (float(elapsed) + before["elapsed_s"]) / 60.0,
         "device": None if device in (None, "auto") else device,
     }
 

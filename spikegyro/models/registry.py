@@ -86,6 +86,23 @@ def save_checkpoint(
     return path
 
 
+def training_before(payload: dict[str, Any] | None) -> dict[str, float]:
+    """Steps and seconds of training before a checkpoint's own run: the runs it was continued
+    from with ``--init`` (``extra["before"]``; zero when there were none)."""
+    before = (payload or {}).get("extra", {}).get("before") or {}
+    return {"steps": int(before.get("steps", 0)), "elapsed_s": float(before.get("elapsed_s", 0))}
+
+
+def training_total(payload: dict[str, Any]) -> dict[str, float]:
+    """All the training behind a checkpoint (its run and those before): what a run started from
+    it with ``--init`` records as its ``extra["before"]``."""
+    extra, before = payload.get("extra", {}), training_before(payload)
+    return {
+        "steps": before["steps"] + int(extra.get("step", 0)),
+        "elapsed_s": before["elapsed_s"] + float(extra.get("elapsed_s", 0.0)),
+    }
+
+
 def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     """Load a checkpoint dict (on the CPU), with clear errors for missing or foreign files."""
     path = Path(path)

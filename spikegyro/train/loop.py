@@ -30,8 +30,7 @@ from torch.utils.data import DataLoader, Sampler
 
 from spikegyro.errors import InputError
 from spikegyro.events.io import atomic_path
-from spikegyro.models.registry import build_model, read_checkpoint, save_checkpoint
-from spikegyro.models.snn6 import grid_state_from_global
+from spikegyro.models.registry import build_model, save_checkpoint
 from spikegyro.train import distributed
 from spikegyro.train.augment import AugmentConfig
 from spikegyro.train.data import (
@@ -49,10 +48,12 @@ from spikegyro.train.data import (
 from spikegyro.train.infer import predict_windows
 from spikegyro.train.presets import TrainConfig, load_config
 from spikegyro.train.runfiles import (
-    RESUME_FILE,
     ProgressBar,
     RunFiles,
     check_time_budget,
+    load_init,
+    load_resume,
+    rng_states,
     tensorboard,
 )
 from spikegyro.train.throughput import BareStep, RunClock, bare_step_rate, train_step
@@ -223,21 +224,6 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def rng_states() -> dict[str, Any]:
-    return {
-        "python": random.getstate(),
-        "torch": torch.get_rng_state(),
-        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
-    }
-
-
-def set_rng_states(states: dict[str, Any]) -> None:
-    random.setstate(states["python"])
-    torch.set_rng_state(states["torch"])
-    if states.get("cuda") and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(states["cuda"])
-
-
 def resume_config(run_dir: Path, overrides: dict[str, Any] | None = None) -> TrainConfig:
     """The saved configuration of a run, with ``overrides`` (e.g. more iterations) applied."""
     path = run_dir / "config.json"
@@ -285,15 +271,16 @@ def _train(
     kwargs = model_kwargs_of(config, spec)
     seed_everything(config.seed)
     model = build_model(config.model, **kwargs)
-    if config.init and not resume:
-        _load_init(model, config)
+    before = load_init(model, config) if config.init and not resume else {}
     model = model.to(ctx.device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: lr_factor(s, config))
 
     start_step, best, elapsed0, best_on = 0, math.inf, 0.0, ""
     if resume:
-        start_step, best, elapsed0, best_on = _load_resume(files, model, optimizer, scheduler, ctx)
+        start_step, best, elapsed0, best_on, before = load_resume(
+            files, model, optimizer, scheduler, ctx.device
+        )
         check_time_budget(config.max_minutes, elapsed0)
     net: nn.Module = model
     if ctx.distributed:
@@ -366,7 +353,8 @@ def _train(
                         better = val["val_median_rel"] < best
                         best = min(best, val["val_median_rel"])
                         _checkpoint(files, model, config, spec, kwargs, optimizer, scheduler, step,
-                                    (best, val_id), time.monotonic() - t0, val, better)  # fmt: skip
+                                    (best, val_id), time.monotonic() - t0, val, better,
+                                    before)  # fmt: skip
                     distributed.barrier(ctx)
             if row and ctx.is_main:
                 row.setdefault("step", step)
@@ -410,10 +398,13 @@ def _checkpoint(
     elapsed_s: float,
     val: dict[str, float],
     better: bool,
+    before: dict[str, float],
 ) -> None:
     """Write last.pt (and best.pt when ``better``) and resume.pt; ``best`` is (the lowest
-    validation median relative error, the :func:`windows_fingerprint` it was measured on)."""
-    extra = {"config": config.as_dict(), "step": step, "metrics": val, "elapsed_s": elapsed_s}
+    validation median relative error, the :func:`windows_fingerprint` it was measured on);
+    ``before``: the training of the checkpoint this run started from (``--init``)."""
+    extra = {"config": config.as_dict(), "step": step, "metrics": val, "elapsed_s": elapsed_s,
+             "before": before}  # fmt: skip
     save = functools.partial(
         save_checkpoint, model=model, name=config.model, model_kwargs=kwargs,
         input_spec=spec.as_dict(), extra=extra,
@@ -432,34 +423,3 @@ def _checkpoint(
     }
     with atomic_path(files.resume) as tmp:
         torch.save(state, tmp)
-
-
-def _load_resume(
-    files: RunFiles, model: nn.Module, optimizer, scheduler, ctx: distributed.DistContext
-) -> tuple[int, float, float, str]:
-    if not (files.last.exists() and files.resume.exists()):
-        raise InputError(f"{files.dir}: nothing to resume (needs last.pt and {RESUME_FILE}).")
-    payload = torch.load(files.last, map_location=ctx.device, weights_only=False)
-    model.load_state_dict(payload["state_dict"])
-    state = torch.load(files.resume, map_location="cpu", weights_only=False)
-    optimizer.load_state_dict(state["optimizer"])
-    scheduler.load_state_dict(state["scheduler"])
-    set_rng_states(state["rng"])
-    best_on = str(state.get("best_on", ""))  # runs saved before fingerprints: unknown data
-    return int(state["step"]), float(state["best"]), float(state["elapsed_s"]), best_on
-
-
-def _load_init(model: nn.Module, config: TrainConfig) -> None:
-    payload = read_checkpoint(config.init)
-    state = payload["state_dict"]
-    if (payload["model"], config.model) == ("snn6", "snn6-grid"):
-        state = grid_state_from_global(state, model.readout_grid)
-    elif payload["model"] != config.model:
-        raise InputError(
-            f"--init {config.init}: a '{payload['model']}' checkpoint cannot start a "
-            f"'{config.model}' run."
-        )
-    try:
-        model.load_state_dict(state)
-    except RuntimeError as exc:
-        raise InputError(f"--init {config.init}: weights do not fit ({exc}).") from None

@@ -9,11 +9,17 @@ from __future__ import annotations
 
 import csv
 import json
+import random
 from pathlib import Path
 from typing import Any
 
+import torch
+from torch import nn
+
 from spikegyro.errors import InputError
 from spikegyro.events.io import atomic_path
+from spikegyro.models.registry import read_checkpoint, training_before, training_total
+from spikegyro.models.snn6 import grid_state_from_global
 from spikegyro.train.presets import TrainConfig
 from spikegyro.train.throughput import BareStep
 
@@ -185,3 +191,53 @@ class ProgressBar:
             self.task, completed=step, loss=f"{loss:.3f}" if loss == loss else "-",
             val="-" if rel is None else f"{rel:.3f}",
         )  # fmt: skip
+
+
+def rng_states() -> dict[str, Any]:
+    return {
+        "python": random.getstate(),
+        "torch": torch.get_rng_state(),
+        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
+    }
+
+
+def set_rng_states(states: dict[str, Any]) -> None:
+    random.setstate(states["python"])
+    torch.set_rng_state(states["torch"])
+    if states.get("cuda") and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(states["cuda"])
+
+
+def load_resume(
+    files: RunFiles, model: nn.Module, optimizer, scheduler, device: torch.device
+) -> tuple[int, float, float, str, dict[str, float]]:
+    """Restore a run from last.pt and resume.pt; (step, best, elapsed s, best_on, before)."""
+    if not (files.last.exists() and files.resume.exists()):
+        raise InputError(f"{files.dir}: nothing to resume (needs last.pt and {RESUME_FILE}).")
+    payload = torch.load(files.last, map_location=device, weights_only=False)
+    model.load_state_dict(payload["state_dict"])
+    state = torch.load(files.resume, map_location="cpu", weights_only=False)
+    optimizer.load_state_dict(state["optimizer"])
+    scheduler.load_state_dict(state["scheduler"])
+    set_rng_states(state["rng"])
+    best_on = str(state.get("best_on", ""))  # runs saved before fingerprints: unknown data
+    step, best, elapsed = int(state["step"]), float(state["best"]), float(state["elapsed_s"])
+    return step, best, elapsed, best_on, training_before(payload)
+
+
+def load_init(model: nn.Module, config: TrainConfig) -> dict[str, float]:
+    """Start ``model`` from the weights of ``config.init``; returns the training behind them."""
+    payload = read_checkpoint(config.init)
+    state = payload["state_dict"]
+    if (payload["model"], config.model) == ("snn6", "snn6-grid"):
+        state = grid_state_from_global(state, model.readout_grid)
+    elif payload["model"] != config.model:
+        raise InputError(
+            f"--init {config.init}: a '{payload['model']}' checkpoint cannot start a "
+            f"'{config.model}' run."
+        )
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as exc:
+        raise InputError(f"--init {config.init}: weights do not fit ({exc}).") from None
+    return training_total(payload)
