@@ -69,14 +69,15 @@ class _SRMLayer(nn.Module):
         return kernels
 
     def exact_kernels(self) -> None:
-        """Recompute the kernels from the parameters in float64 (on the weight's device).
+        """Recompute the kernels from the parameters, in the weight's dtype and on its device.
 
         ``.double()`` only widens the float32 taps, which keep their rounding (≤ 6e-8 relative);
-        a float64 forward with exact taps is the reference that the streaming engine, which runs
-        the kernels as exact recursions, reproduces to the last bits.
+        a float64 forward with exact taps (call this after ``.double()``) is the reference that
+        the streaming engine, which runs the kernels as exact recursions, reproduces to the last
+        bits.
         """
         for name, kernel in self._kernels(torch.float64).items():
-            setattr(self, name, kernel.to(self.weight.device))
+            setattr(self, name, kernel.to(self.weight))
 
     def reset_parameters(self, gain: float = 1.0) -> None:
         """Uniform weights in ±gain/√fan_in (PyTorch's default conv init when gain = 1)."""
