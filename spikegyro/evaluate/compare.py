@@ -41,7 +41,7 @@ from spikegyro.evaluate.report import (
     paper_row,
     write_report,
 )
-from spikegyro.models.registry import build_model, read_checkpoint, training_before
+from spikegyro.models.registry import build_model, read_checkpoint, training_total
 from spikegyro.train.data import InputSpec
 
 METRICS_FORMAT = "spikegyro-metrics/1"
@@ -82,13 +82,11 @@ def training_info(payload: dict[str, Any] | None) -> dict[str, Any]:
     configuration named, None for ``auto``.
     """
     extra = (payload or {}).get("extra", {})
-    config = extra.get("config") or {}
-    device = config.get("device")
-    before = training_before(payload)
-    step, elapsed = extra.get("step"), extra.get("elapsed_s")
+    device = (extra.get("config") or {}).get("device")
+    total = training_total(payload or {})
     return {
-        "steps": None if step is None else int(step) + before["steps"],
-        "minutes": None if elapsed is None else (float(elapsed) + before["elapsed_s"]) / 60.0,
+        "steps": None if extra.get("step") is None else total["steps"],
+        "minutes": None if extra.get("elapsed_s") is None else total["elapsed_s"] / 60.0,
         "device": None if device in (None, "auto") else device,
     }
 
