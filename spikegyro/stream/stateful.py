@@ -159,6 +159,9 @@ def _shift(n: int) -> int:
     return n.bit_length() - 1 if n & (n - 1) == 0 else -1
 
 
+RUN_GAP = 4
+"""Default idle pixels the update pass advances rather than end a run of live ones."""
+
 PROFILE_KINDS = ("scatter", "tail scatter", "feedback", "update")
 """Columns of :meth:`StreamingSNN.profile` for each layer (see the module docstring); its last
 row holds the input binning and the readout in its first two columns."""
@@ -184,6 +187,8 @@ class StreamingSNN:
         input_maps: per layer, keep the synaptic input as a ring of L + 1 maps (True) or scatter
             the input spikes a second time for the kernel's tail (False); default: maps where
             the input has more than 2 channels (a spike then reaches many weights).
+        run_gap: up to this many idle pixels between two live ones are advanced with them (their
+            state is exactly zero and stays so), so that the update pass starts fewer runs.
     """
 
     def __init__(
@@ -193,11 +198,13 @@ class StreamingSNN:
         threads: int = 1,
         block_steps: int = 16,
         input_maps: tuple[bool, ...] | None = None,
+        run_gap: int = RUN_GAP,
     ) -> None:
         if threads not in (1, 2) or block_steps < 1:
             raise ValueError(f"threads must be 1 or 2 and block_steps >= 1, got {threads}, "
                              f"{block_steps}")  # fmt: skip
         self.spec, self.threads, self.block_steps = spec, threads, block_steps
+        self.run_gap = run_gap
         shapes = [spec.input_shape, *spec.layer_shapes()]
         n_layers = len(spec.layers)
         geo = np.zeros((n_layers, 10), dtype=np.int64)
@@ -306,7 +313,7 @@ class StreamingSNN:
             self._tab_off, self._w, self._w_off, self._state, self._st_off, self._z, self._z_off,
             self._last, self._pos_off, self._ring, self._ring_off, self._ring_len, self._ring_cap,
             self._ring_cnt, self._cnt_off, self._seen, self._fc, self._out_kernel, self._h,
-            self.spike_counts, self._cycles,
+            self.spike_counts, self._cycles, self.run_gap,
         )  # fmt: skip
 
     def _pipeline(self, inp, offs, out, edges: list[int], split: int) -> None:
@@ -496,11 +503,11 @@ def _advance_ring(st, z, mask, n0, n1, zn0, zo0, par):  # pragma: no cover
 
 @numba.njit(cache=True, nogil=True)
 def _layer_pass(
-    st, s0, z, zn, zo, last, p0, pos, n_pos, cout, t, horizon, par, mask, out
+    st, s0, z, zn, zo, last, p0, pos, n_pos, cout, t, horizon, par, mask, out, gap
 ):  # pragma: no cover
     """Advance every pixel ``pos..n_pos`` touched in the last ``horizon`` steps, in runs of
-    adjacent pixels; write the flat indices of the neurons that fired to ``out``; returns their
-    number."""
+    adjacent pixels (bridging up to ``gap`` idle ones); write the flat indices of the neurons that
+    fired to ``out``; returns their number."""
     n_spk = 0
     while pos < n_pos:
         age = t - last[p0 + pos]
@@ -513,8 +520,21 @@ def _layer_pass(
             pos += 1
             continue
         end = pos + 1
-        while end < n_pos and t - last[p0 + end] < horizon:
-            end += 1
+        while end < n_pos:
+            if t - last[p0 + end] < horizon:
+                end += 1
+                continue
+            # a few idle pixels (state exactly zero, or zeroed here) cost less to advance with
+            # the run than a new run costs to start
+            ahead = end
+            while ahead < min(n_pos, end + gap) and t - last[p0 + ahead] >= horizon:
+                ahead += 1
+            if ahead == n_pos or t - last[p0 + ahead] >= horizon:
+                break
+            for q in range(end, ahead):
+                if t - last[p0 + q] == horizon:
+                    st[:, s0 + q * cout : s0 + (q + 1) * cout] = 0.0
+            end = ahead + 1
         n0, n1 = s0 + pos * cout, s0 + end * cout
         if zn < 0:
             _advance(st, mask, n0, n1, par)
@@ -547,7 +567,7 @@ def _run_block(  # pragma: no cover
     inp, offs, s_begin, s_end, l0, l1, t_base, out, geo, par, klen, tab, tab_off, w, w_off, st,
     st_off, z,
     z_off, last, pos_off, ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off, seen, fc, kout,
-    hring, spike_counts, cycles,
+    hring, spike_counts, cycles, gap,
 ):  # fmt: skip
     n_layers = geo.shape[0]
     mask = np.zeros(8 * (ring_cap[1:].max() // 8 + 1), dtype=np.uint8)
@@ -613,7 +633,7 @@ def _run_block(  # pragma: no cover
             obase = ring_off[li + 1] + (t % ring_len[li + 1]) * ring_cap[li + 1]
             n_spk = _layer_pass(
                 st, s0, z, zn, zo, last, p0, 0, g[4] * g[5], cout, t, max(big_l, big_m) + 1,
-                par[li], mask, ring[obase : obase + ring_cap[li + 1]],
+                par[li], mask, ring[obase : obase + ring_cap[li + 1]], gap,
             )  # fmt: skip
             ring_cnt[cnt] = n_spk
             spike_counts[li] += n_spk
