@@ -36,7 +36,7 @@ from spikegyro.train.loop import (
 )
 from spikegyro.train.loss import angular_velocity_loss
 from spikegyro.train.presets import TrainConfig, resolve_config
-from spikegyro.train.throughput import RunClock, bare_step_rate
+from spikegyro.train.throughput import RunClock, bare_step_rate, train_step
 
 SIZE = 64  # SNN-6 needs at least 63 px for its five unpadded convolutions
 CAMERA = Camera(SIZE, SIZE, fx=56.0, fy=56.0, cx=31.5, cy=31.5)
@@ -85,6 +85,31 @@ def test_one_training_step_lowers_the_loss(dataset, tmp_path, model, kwargs):
     with torch.no_grad():
         after = angular_velocity_loss(net(x), y, config.loss_start_step)
     assert after.item() < before.item() - 1e-3
+
+
+def test_bf16_autocast_step_runs_the_convolutions_in_bfloat16_and_learns(dataset, tmp_path):
+    config = tiny_config(dataset, tmp_path, model="ann6", amp="bf16", lr=3e-4)
+    spec = input_spec_of(config)
+    samples = training_samples(config, spec)
+    batch = [samples[i] for i in range(4)]
+    x, y = model_batch(torch.stack([b[0] for b in batch]), torch.stack([b[1] for b in batch]), spec)
+    torch.manual_seed(0)
+    net = build_model("ann6", **model_kwargs_of(config, spec))
+    reference = build_model("ann6", **model_kwargs_of(config, spec))
+    reference.load_state_dict(net.state_dict())
+    seen = []
+    convs = [m for m in net.modules() if isinstance(m, torch.nn.Conv2d)]
+    for conv in convs:
+        conv.register_forward_hook(lambda _m, _i, out: seen.append(out.dtype))
+    optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
+    first = train_step(net, optimizer, x, y, config.loss_start_step, amp=True)
+    assert seen == [torch.bfloat16] * len(convs)
+    assert first.dtype == torch.float32
+    assert all(p.dtype == torch.float32 for p in net.parameters())
+    full = angular_velocity_loss(reference.train()(x), y, config.loss_start_step)
+    assert abs(first.item() - full.item()) < 0.02 * full.item()  # bfloat16: 8 bits of mantissa
+    losses = [train_step(net, optimizer, x, y, config.loss_start_step, amp=True) for _ in range(3)]
+    assert losses[-1].item() < first.item()
 
 
 def state_of(path: Path) -> dict[str, torch.Tensor]:
@@ -330,6 +355,20 @@ def test_cli_trains_overrides_options_and_resumes(dataset, tmp_path):
     assert (out / "log.csv").read_text() == before  # nothing half-written
 
 
+def test_cli_trains_an_ann_in_bf16(dataset, tmp_path):
+    out = tmp_path / "amp"
+    args = [
+        "train", "--model", "ann6", "--amp", "bf16", "--data", str(dataset), "--out", str(out),
+        "--sensor-width", str(SIZE), "--sensor-height", str(SIZE), "--window-ms", "20",
+        "--loss-start-step", "10", "--batch-size", "2", "--iterations", "2", "--val-every", "2",
+        "--num-workers", "0", "--threads", "1", "--device", "cpu", "--bare-steps", "1",
+    ]  # fmt: skip
+    result = CliRunner().invoke(app, args, catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "config.json").read_text())["amp"] == "bf16"
+    assert training_info(load_checkpoint(out / "last.pt")[1])["amp"] == "bf16"
+
+
 def test_config_errors_are_user_errors(tmp_path):
     from spikegyro.errors import InputError
 
@@ -339,6 +378,10 @@ def test_config_errors_are_user_errors(tmp_path):
         resolve_config("paper", {"data": "x", "model": "ann6", "input": "spikes"})
     with pytest.raises(InputError, match="--preset"):
         resolve_config("gpu", {"data": "x"})
+    with pytest.raises(InputError, match="--amp fp8"):
+        resolve_config("paper", {"data": "x", "model": "ann6", "amp": "fp8"})
+    with pytest.raises(InputError, match="float32"):
+        resolve_config("paper", {"data": "x", "model": "snn6", "amp": "bf16"})
     with pytest.raises(InputError, match="--online"):
         resolve_config("paper", {})
 

@@ -75,19 +75,22 @@ def _checkpoint(entry: dict[str, Any]) -> dict[str, Any] | None:
 
 
 def training_info(payload: dict[str, Any] | None) -> dict[str, Any]:
-    """Steps, wall-clock minutes and device of the training behind a checkpoint (None: unknown).
+    """Steps, wall-clock minutes, device and precision of the training behind a checkpoint (None:
+    unknown).
 
     ``steps`` and ``minutes`` add the checkpoint's own run and the runs it was continued from
     with ``--init`` (their totals are in ``extra["before"]``); ``device`` is the one the run's
-    configuration named, None for ``auto``.
+    configuration named, None for ``auto``; ``amp`` its mixed precision ("off" before it existed).
     """
     extra = (payload or {}).get("extra", {})
-    device = (extra.get("config") or {}).get("device")
+    config = extra.get("config") or {}
+    device = config.get("device")
     total = training_total(payload or {})
     return {
         "steps": None if extra.get("step") is None else total["steps"],
         "minutes": None if extra.get("elapsed_s") is None else total["elapsed_s"] / 60.0,
         "device": None if device in (None, "auto") else device,
+        "amp": config.get("amp", "off"),
     }
 
 
@@ -165,7 +168,8 @@ def table_one(models: dict[str, dict[str, Any]]) -> Table:
         minutes = info["minutes"]
         time = NOT_AVAILABLE if minutes is None else f"{minutes:.1f}"
         if minutes is not None:
-            time += f" ({info['device'] or NOT_AVAILABLE})"
+            amp = "" if info["amp"] == "off" else f", {info['amp']}"
+            time += f" ({info['device'] or NOT_AVAILABLE}{amp})"
         rows.append(
             [
                 name,

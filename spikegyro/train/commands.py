@@ -101,6 +101,9 @@ def train_command(
     data_path: str = typer.Option(
         None, help="events (binned on the device), dense, or auto (events on CUDA)."
     ),
+    amp: str = typer.Option(
+        None, help="off, or bf16: the ANNs' forward passes in bfloat16 autocast (GPU speed)."
+    ),
     bare_steps: int = typer.Option(
         None, help="Bare training steps timed at the end, to compare with the run (0 = off)."
     ),
@@ -145,6 +148,7 @@ def train_command(
         "threads": threads,
         "device": device,
         "data_path": data_path,
+        "amp": amp,
         "bare_steps": bare_steps,
         "sim": _json_option(sim, "sim"),
         "tensorboard": tensorboard,

@@ -324,7 +324,8 @@ def _train(
     with bar:
         for inputs, targets in loader:
             x, y = device_batch(inputs, targets, spec, ctx.device)
-            loss = train_step(net, optimizer, x, y, config.train_loss_start_step, config.grad_clip)
+            loss = train_step(net, optimizer, x, y, config.train_loss_start_step, config.grad_clip,
+                              config.amp == "bf16")  # fmt: skip
             scheduler.step()
             step += 1
             loss_sum += float(loss)
@@ -373,7 +374,7 @@ def _train(
         bare = bare_step_rate(
             model, x, y, windows=config.batch_size // ctx.world_size, lr=config.lr,
             loss_start_step=config.train_loss_start_step, grad_clip=config.grad_clip,
-            steps=config.bare_steps,
+            steps=config.bare_steps, amp=config.amp == "bf16",
         )  # fmt: skip
     data_path = "events" if events else "dense"
     if ctx.is_main:

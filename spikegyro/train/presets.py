@@ -15,6 +15,7 @@ from typing import Any
 from spikegyro.errors import InputError
 from spikegyro.train.data import DATA_PATHS
 
+AMP_MODES = ("off", "bf16")
 MODEL_INPUTS = {"snn6": "spikes", "snn6-grid": "spikes", "ann6": "voxel", "resnet50": "voxel"}
 
 
@@ -65,6 +66,9 @@ class TrainConfig:
         data_path: how training batches reach the device: "events" (event lists, binned on the
             device), "dense" (input tensors encoded in the DataLoader workers) or "auto"
             (events on CUDA, dense on the CPU).
+        amp: "off", or "bf16" to run the ANNs' forward passes in bfloat16 autocast (weights,
+            optimizer and loss stay float32; no loss scaling is needed with bfloat16). The SNN
+            stays in float32: its threshold crossings are exact comparisons.
         bare_steps: at the end of the run, time this many bare training steps (same step on one
             batch already on the device) to report beside the run's samples/s (0 = off).
         sim: SimConfig overrides for online mode (dict; see ``spikegyro simulate``).
@@ -110,6 +114,7 @@ class TrainConfig:
     threads: int = 0
     device: str = "auto"
     data_path: str = "auto"
+    amp: str = "off"
     bare_steps: int = 10
     sim: dict[str, Any] | None = None
     tensorboard: bool = False
@@ -127,6 +132,13 @@ class TrainConfig:
         if self.data_path not in DATA_PATHS:
             choices = ", ".join(DATA_PATHS)
             raise InputError(f"--data-path {self.data_path}: choose one of {choices}.")
+        if self.amp not in AMP_MODES:
+            raise InputError(f"--amp {self.amp}: choose one of {', '.join(AMP_MODES)}.")
+        if self.amp != "off" and self.input == "spikes":
+            raise InputError(
+                f"--amp {self.amp} with --model {self.model}: mixed precision is for the ANNs; "
+                "the SNN's threshold crossings need float32 (use --amp off)."
+            )
         if self.bare_steps < 0:
             raise InputError(f"--bare-steps {self.bare_steps}: must be 0 (off) or positive.")
         if self.lr_schedule not in ("constant", "cosine"):

@@ -29,12 +29,16 @@ def train_step(
     y: torch.Tensor,
     loss_start_step: int,
     grad_clip: float = 0.0,
+    amp: bool = False,
 ) -> torch.Tensor:
     """One optimizer step on a batch; returns the (detached) loss, rad/s.
 
-    ``grad_clip`` > 0 clips the gradient norm of ``net``'s parameters first.
+    ``grad_clip`` > 0 clips the gradient norm of ``net``'s parameters first. ``amp`` runs the
+    forward pass under bfloat16 autocast; the loss is taken in float32.
     """
-    loss = angular_velocity_loss(net(x), y, loss_start_step)
+    with torch.autocast(x.device.type, dtype=torch.bfloat16, enabled=amp):
+        out = net(x)
+    loss = angular_velocity_loss(out.float(), y, loss_start_step)
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     if grad_clip > 0:
@@ -68,6 +72,7 @@ def bare_step_rate(
     lr: float,
     grad_clip: float = 0.0,
     steps: int = 10,
+    amp: bool = False,
 ) -> BareStep:
     """Time ``steps`` training steps of a copy of ``model`` (Adam, fresh state) on one batch.
 
@@ -81,11 +86,11 @@ def bare_step_rate(
     net = copy.deepcopy(model).train()
     optimizer = torch.optim.Adam(net.parameters(), lr=lr)
     device = x.device
-    train_step(net, optimizer, x, y, loss_start_step, grad_clip)
+    train_step(net, optimizer, x, y, loss_start_step, grad_clip, amp)
     synchronize(device)
     start = time.perf_counter()
     for _ in range(steps):
-        train_step(net, optimizer, x, y, loss_start_step, grad_clip)
+        train_step(net, optimizer, x, y, loss_start_step, grad_clip, amp)
     synchronize(device)
     seconds = (time.perf_counter() - start) / steps
     return BareStep(1000.0 * seconds, windows / seconds, steps)
