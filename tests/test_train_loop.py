@@ -365,6 +365,7 @@ def test_cli_trains_an_ann_in_bf16(dataset, tmp_path):
     ]  # fmt: skip
     result = CliRunner().invoke(app, args, catch_exceptions=False)
     assert result.exit_code == 0, result.output
+    assert "warning: --amp bf16 on a CPU" in result.output
     assert json.loads((out / "config.json").read_text())["amp"] == "bf16"
     assert training_info(load_checkpoint(out / "last.pt")[1])["amp"] == "bf16"
 

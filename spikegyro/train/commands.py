@@ -168,6 +168,11 @@ def train_command(
         if (out / "last.pt").exists():
             raise InputError(f"{out}: already holds a run; pass --resume or another --out.")
         config = resolve_config(preset, {**overrides, "out": str(out)})
+    if config.amp != "off" and distributed.pick_device(config.device).type == "cpu":
+        Console(stderr=True).print(
+            f"warning: --amp {config.amp} on a CPU: most CPUs have no bfloat16 units, so this is "
+            "usually slower than float32 (it is meant for GPUs)."
+        )
     result = train(config, resume=resume)
     if distributed.init_rank() == 0:
         console = Console()
