@@ -14,9 +14,11 @@ median |ω|, and the median relative error against the simulator's ground truth 
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -60,9 +62,13 @@ def main() -> None:
     print(f"{'seq':>3} {'events':>9} {'stream':>9} {'batched':>9} {'ratio':>7} "
           f"{'med|d|':>8} {'max|d|':>8} {'rel err stream':>14} {'batched':>8}")  # fmt: skip
     totals = np.zeros(3)  # seconds of events, stream wall, batched wall
+    simulate = functools.partial(
+        simulate_sequence, SimConfig(duration_ms=args.duration_ms), seed=args.seed, split="test"
+    )
+    with ProcessPoolExecutor(min(args.sequences, os.cpu_count() or 1)) as pool:
+        recordings = list(pool.map(simulate, range(args.sequences)))  # before any timing
     with tempfile.TemporaryDirectory(prefix="bench-batched-") as tmp:
-        for i in range(args.sequences):
-            rec = simulate_sequence(SimConfig(duration_ms=args.duration_ms), i, args.seed, "test")
+        for i, rec in enumerate(recordings):
             path = write_recording(Path(tmp) / f"rec{i}.h5", rec)
             if i == 0:  # warm-up: compiled kernels, CUDA context, allocator
                 warm = (args.segment_ms + args.context_ms) / 1000
