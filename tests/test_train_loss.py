@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
-from spikegyro.train.loss import angular_velocity_loss
+from spikegyro.train.loss import angular_velocity_loss, validation_metrics
 
 
 def test_loss_is_the_mean_euclidean_error_over_late_steps():
@@ -40,3 +41,17 @@ def test_shape_mismatch_and_bad_start_are_rejected():
         angular_velocity_loss(torch.zeros(1, 3, 10), torch.zeros(1, 10, 3))
     with pytest.raises(ValueError, match="start_step"):
         angular_velocity_loss(torch.zeros(1, 3, 10), torch.zeros(1, 3, 10), start_step=10)
+
+
+def test_validation_metrics_skip_early_steps_and_near_zero_truth():
+    truth = np.zeros((2, 4, 3))
+    truth[:, :, 0] = np.radians([[100.0, 100.0, 100.0, 0.5], [100.0, 50.0, 50.0, 50.0]])
+    prediction = truth.copy()
+    prediction[0, :, 1] = np.radians(10.0)  # 10 deg/s off everywhere in window 0
+    prediction[1, :, 2] = np.radians(20.0)  # 20 deg/s off in window 1
+    got = validation_metrics(prediction, truth, start_step=1)
+    # steps 1..3: errors 10, 10, 10 and 20, 20, 20 deg/s
+    assert got["val_mean_err_deg"] == pytest.approx(15.0)
+    assert got["val_loss"] == pytest.approx(np.radians(15.0))
+    # ratios 0.1, 0.1 (the 0.5 deg/s truth left out) and 0.4, 0.4, 0.4
+    assert got["val_median_rel"] == pytest.approx(0.4)

@@ -46,6 +46,7 @@ from spikegyro.train.data import (
     windows_fingerprint,
 )
 from spikegyro.train.infer import predict_windows
+from spikegyro.train.loss import validation_metrics
 from spikegyro.train.presets import TrainConfig, load_config
 from spikegyro.train.runfiles import (
     ProgressBar,
@@ -187,25 +188,6 @@ def lr_factor(step: int, config: TrainConfig) -> float:
     progress = min(1.0, (step - config.warmup_steps) / span)
     low = config.lr_min_factor
     return low + (1 - low) * 0.5 * (1 + math.cos(math.pi * progress))
-
-
-def validation_metrics(
-    prediction: np.ndarray, truth: np.ndarray, start_step: int
-) -> dict[str, float]:
-    """Loss and the paper's headline numbers on (n, T, 3) rad/s arrays, steps >= start_step.
-
-    ``val_median_rel`` is the median of ‖ω − ω̂‖/‖ω̂‖ over (window, step) pairs with
-    ‖ω̂‖ >= 1 deg/s; ``val_mean_err_deg`` the mean Euclidean error in deg/s (the paper's "RMSE").
-    """
-    err = np.linalg.norm(prediction - truth, axis=-1)[:, start_step:]
-    norm = np.linalg.norm(truth, axis=-1)[:, start_step:]
-    valid = norm >= np.radians(1.0)
-    rel = err[valid] / norm[valid]
-    return {
-        "val_loss": float(err.mean()),
-        "val_median_rel": float(np.median(rel)) if rel.size else float("nan"),
-        "val_mean_err_deg": float(np.degrees(err.mean())),
-    }
 
 
 def validate(

@@ -1,7 +1,9 @@
-"""The paper's training loss: the time-averaged Euclidean error of the angular velocity."""
+"""The paper's training loss: the time-averaged Euclidean error of the angular velocity; and the
+validation metrics a run logs."""
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 
@@ -30,3 +32,22 @@ def angular_velocity_loss(
             raise ValueError(f"start_step {start_step} outside 0..{prediction.shape[-1] - 1}")
         error = error[..., start_step:]
     return error.mean()
+
+
+def validation_metrics(
+    prediction: np.ndarray, truth: np.ndarray, start_step: int
+) -> dict[str, float]:
+    """Loss and the paper's headline numbers on (n, T, 3) rad/s arrays, steps >= start_step.
+
+    ``val_median_rel`` is the median of ‖ω − ω̂‖/‖ω̂‖ over (window, step) pairs with
+    ‖ω̂‖ >= 1 deg/s; ``val_mean_err_deg`` the mean Euclidean error in deg/s (the paper's "RMSE").
+    """
+    err = np.linalg.norm(prediction - truth, axis=-1)[:, start_step:]
+    norm = np.linalg.norm(truth, axis=-1)[:, start_step:]
+    valid = norm >= np.radians(1.0)
+    rel = err[valid] / norm[valid]
+    return {
+        "val_loss": float(err.mean()),
+        "val_median_rel": float(np.median(rel)) if rel.size else float("nan"),
+        "val_mean_err_deg": float(np.degrees(err.mean())),
+    }
