@@ -82,14 +82,14 @@ def test_bridging_idle_pixels_changes_no_bit():
     # sparse input: live pixels come in short runs with idle ones (some just expired) between
     events = random_events(W, H, STEPS, rate=0.002, seed=4)
     index, offsets = step_offsets(events, 0, STEPS)
-    runs = StreamingSNN(spec_from_model(TinySNN(seed=3), (2, H, W)), run_gap=0)
-    expected = runs.run(index, offsets)
-    assert runs.spike_counts.min() > 0
+    unbridged = StreamingSNN(spec_from_model(TinySNN(seed=3), (2, H, W)), run_gap=0)
+    expected = unbridged.run(index, offsets)
+    assert unbridged.spike_counts.min() > 0
     for gap in (1, 3, 64):
-        bridged = StreamingSNN(runs.spec, run_gap=gap)
+        bridged = StreamingSNN(unbridged.spec, run_gap=gap)
         np.testing.assert_array_equal(bridged.run(index, offsets), expected)
-        np.testing.assert_array_equal(bridged.spike_counts, runs.spike_counts)
-        np.testing.assert_array_equal(bridged._state, runs._state)  # rounding residues too
+        np.testing.assert_array_equal(bridged.spike_counts, unbridged.spike_counts)
+        np.testing.assert_array_equal(bridged._state, unbridged._state)  # rounding residues too
 
 
 @pytest.mark.parametrize("block", [1, 4, 16])

@@ -301,13 +301,13 @@ def _train(
     clock = RunClock(config.batch_size)
     t0 = time.monotonic() - elapsed0
     step, loss_sum, loss_n, last_loss, val = start_step, 0.0, 0, math.nan, {}
-    stopped_early = False
+    stopped_early, amp = False, config.amp != "off"
     net.train()
     with bar:
         for inputs, targets in loader:
             x, y = device_batch(inputs, targets, spec, ctx.device)
             loss = train_step(net, optimizer, x, y, config.train_loss_start_step, config.grad_clip,
-                              config.amp == "bf16")  # fmt: skip
+                              amp)  # fmt: skip
             scheduler.step()
             step += 1
             loss_sum += float(loss)
@@ -356,7 +356,7 @@ def _train(
         bare = bare_step_rate(
             model, x, y, windows=config.batch_size // ctx.world_size, lr=config.lr,
             loss_start_step=config.train_loss_start_step, grad_clip=config.grad_clip,
-            steps=config.bare_steps, amp=config.amp == "bf16",
+            steps=config.bare_steps, amp=amp,
         )  # fmt: skip
     data_path = "events" if events else "dense"
     if ctx.is_main:
