@@ -370,6 +370,19 @@ def test_cli_trains_an_ann_in_bf16(dataset, tmp_path):
     assert training_info(load_checkpoint(out / "last.pt")[1])["amp"] == "bf16"
 
 
+def test_frozen_layers_keep_their_init_weights_while_the_rest_learn(dataset, tmp_path):
+    train(tiny_config(dataset, tmp_path / "a", iterations=2), progress=False)
+    init = tmp_path / "a" / "last.pt"
+    train(tiny_config(dataset, tmp_path / "b", init=str(init), freeze=4), progress=False)
+    start, tuned = state_of(init), state_of(tmp_path / "b" / "last.pt")
+    weights = [name for name in start if name.endswith(".weight")]
+    assert len(weights) == 6
+    for name in weights:
+        same = torch.equal(start[name], tuned[name])
+        assert same == name.startswith(("conv1.", "conv2.", "conv3.", "conv4.")), name
+    assert json.loads((tmp_path / "b" / "config.json").read_text())["freeze"] == 4
+
+
 def test_config_errors_are_user_errors(tmp_path):
     from spikegyro.errors import InputError
 
@@ -385,6 +398,10 @@ def test_config_errors_are_user_errors(tmp_path):
         resolve_config("paper", {"data": "x", "model": "snn6", "amp": "bf16"})
     with pytest.raises(InputError, match="--online"):
         resolve_config("paper", {})
+    with pytest.raises(InputError, match="batch norms"):
+        resolve_config("paper", {"data": "x", "model": "ann6", "freeze": 2})
+    with pytest.raises(InputError, match="--freeze 6: SNN-6 has 5"):
+        resolve_config("paper", {"data": "x", "freeze": 6})
 
 
 def test_online_mode_simulates_fresh_sequences_in_workers(tmp_path):

@@ -90,6 +90,9 @@ def train_command(
     centre_crop: float = typer.Option(
         None, help="Probability that a window keeps only a centred box of its events (0 = off)."
     ),
+    freeze: int = typer.Option(
+        None, help="SNN: keep the first N spiking layers' weights fixed (fine-tune the rest)."
+    ),
     seed: int = typer.Option(None, help="Random seed (model init and samples)."),
     val_every: int = typer.Option(None, help="Validate and checkpoint every N steps."),
     val_windows: int = typer.Option(None, help="Validate on at most N windows (0 = all)."),
@@ -118,6 +121,7 @@ def train_command(
         "input": input,
         "model_kwargs": _json_option(model_kwargs, "model-kwargs"),
         "init": None if init is None else str(init),
+        "freeze": freeze,
         "scale": scale,
         "window_ms": window_ms,
         "num_bins": num_bins,

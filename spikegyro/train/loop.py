@@ -255,7 +255,8 @@ def _train(
     model = build_model(config.model, **kwargs)
     before = load_init(model, config) if config.init and not resume else {}
     model = model.to(ctx.device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    trained = model.freeze(config.freeze) if config.freeze else list(model.parameters())
+    optimizer = torch.optim.Adam(trained, lr=config.lr)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: lr_factor(s, config))
 
     start_step, best, elapsed0, best_on = 0, math.inf, 0.0, ""

@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 from spikegyro.errors import InputError
+from spikegyro.models.snn6 import SNN6_LAYERS
 from spikegyro.train.data import DATA_PATHS
 
 AMP_MODES = ("off", "bf16")
@@ -33,6 +34,8 @@ class TrainConfig:
         input: representation: spikes (SNN), voxel or frames (ANNs); "" = the model's default.
         model_kwargs: extra constructor arguments of the model.
         init: checkpoint whose weights start the training (fine-tuning); "" = random init.
+        freeze: the SNN's first this many spiking layers keep their (``init``) weights; only the
+            later layers and the readout learn (0 = all learn).
         sensor: (width, height) of the dataset's events, pixels.
         scale: factor on event coordinates before binning (0.5: 240x180 -> 120x90).
         window_ms: window length, ms, of validation windows and of the checkpoint's input spec.
@@ -83,6 +86,7 @@ class TrainConfig:
     input: str = ""
     model_kwargs: dict[str, Any] | None = None
     init: str = ""
+    freeze: int = 0
     sensor: tuple[int, int] = (240, 180)
     scale: float = 1.0
     window_ms: int = 100
@@ -138,6 +142,16 @@ class TrainConfig:
             raise InputError(
                 f"--amp {self.amp} with --model {self.model}: mixed precision is for the ANNs; "
                 "the SNN's threshold crossings need float32 (use --amp off)."
+            )
+        if self.freeze and self.input != "spikes":
+            raise InputError(
+                f"--freeze {self.freeze} with --model {self.model}: freezing layers is for the "
+                "SNNs (the ANNs' frozen batch norms would still learn their statistics)."
+            )
+        if not 0 <= self.freeze <= len(SNN6_LAYERS):
+            raise InputError(
+                f"--freeze {self.freeze}: SNN-6 has {len(SNN6_LAYERS)} spiking layers; freeze 0 "
+                f"to {len(SNN6_LAYERS)} of them."
             )
         if self.bare_steps < 0:
             raise InputError(f"--bare-steps {self.bare_steps}: must be 0 (off) or positive.")
