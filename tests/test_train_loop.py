@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import signal
 import socket
 import time
 from dataclasses import replace
@@ -31,6 +32,7 @@ from spikegyro.train.loop import (
     StepSampler,
     input_spec_of,
     model_kwargs_of,
+    resume_config,
     train,
     training_samples,
 )
@@ -368,6 +370,50 @@ def test_cli_trains_an_ann_in_bf16(dataset, tmp_path):
     assert "warning: --amp bf16 on a CPU" in result.output
     assert json.loads((out / "config.json").read_text())["amp"] == "bf16"
     assert training_info(load_checkpoint(out / "last.pt")[1])["amp"] == "bf16"
+
+
+def interrupt_after(monkeypatch, steps: int) -> None:
+    """Deliver a real SIGINT to this process right after training step ``steps``."""
+    import spikegyro.train.loop as loop
+
+    done = []
+
+    def step(*args, **kwargs):
+        loss = train_step(*args, **kwargs)
+        done.append(1)
+        if len(done) == steps:
+            signal.raise_signal(signal.SIGINT)
+        return loss
+
+    monkeypatch.setattr(loop, "train_step", step)
+
+
+def test_ctrl_c_stops_after_the_step_with_a_checkpoint_to_resume_from(
+    dataset, tmp_path, monkeypatch
+):
+    handler = signal.getsignal(signal.SIGINT)
+    interrupt_after(monkeypatch, 2)
+    result = train(tiny_config(dataset, tmp_path, iterations=6, val_every=100), progress=False)
+    assert (result.steps, result.interrupted, result.stopped_early) == (2, True, True)
+    assert signal.getsignal(signal.SIGINT) is handler
+    assert torch.load(tmp_path / "resume.pt", weights_only=False)["step"] == 2
+    assert "val_median_rel" in result.val  # validated before stopping, like the time budget
+    monkeypatch.undo()
+    resumed = train(resume_config(tmp_path), resume=True, progress=False)
+    assert (resumed.steps, resumed.interrupted) == (6, False)
+
+
+def test_cli_exits_130_after_ctrl_c_and_says_how_to_resume(dataset, tmp_path, monkeypatch):
+    interrupt_after(monkeypatch, 1)
+    args = ["train", "--data", str(dataset), "--out", str(tmp_path / "run"), "--sensor-width",
+            str(SIZE), "--sensor-height", str(SIZE), "--window-ms", "20", "--loss-start-step",
+            "10", "--batch-size", "2", "--iterations", "5", "--num-workers", "0", "--device",
+            "cpu", "--bare-steps", "0"]  # fmt: skip
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 130, result.output
+    assert "interrupted: 1 steps" in result.output
+    assert "--resume" in result.output
+    assert (tmp_path / "run" / "last.pt").exists()
 
 
 def test_frozen_layers_keep_their_init_weights_while_the_rest_learn(dataset, tmp_path):

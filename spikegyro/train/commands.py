@@ -180,7 +180,9 @@ def train_command(
     result = train(config, resume=resume)
     if distributed.init_rank() == 0:
         console = Console()
-        state = "stopped at the time budget" if result.stopped_early else "done"
+        state = "done"
+        if result.stopped_early:
+            state = "interrupted" if result.interrupted else "stopped at the time budget"
         console.print(
             f"[bold]train[/] {config.model} {state}: {result.steps} steps in "
             f"{result.elapsed_s / 60:.1f} min, last loss {result.last_loss:.3f} rad/s"
@@ -193,3 +195,7 @@ def train_command(
             )
         console.print(throughput_line(result))
         console.print(f"run directory: {result.run_dir}")
+        if result.interrupted:
+            console.print(f"continue with: spikegyro train --out {result.run_dir} --resume")
+    if result.interrupted:
+        raise typer.Exit(130)

@@ -46,6 +46,7 @@ from spikegyro.train.data import (
     windows_fingerprint,
 )
 from spikegyro.train.infer import predict_windows
+from spikegyro.train.interrupt import GracefulStop, ignore_interrupts
 from spikegyro.train.loss import validation_metrics
 from spikegyro.train.presets import TrainConfig, load_config
 from spikegyro.train.runfiles import (
@@ -74,6 +75,7 @@ class TrainResult:
     samples_per_s: float = math.nan  # steady state, without validation (see RunClock)
     bare: BareStep | None = None  # the bare step of one process's share of the batch
     data_path: str = "dense"
+    interrupted: bool = False  # stopped by Ctrl-C (see spikegyro.train.interrupt)
 
 
 # ------------------------------------------------------------------------------ components
@@ -176,6 +178,7 @@ class StepSampler(Sampler[int]):
 
 def _worker_init(_: int) -> None:
     torch.set_num_threads(1)  # workers encode events; the main process owns the cores
+    ignore_interrupts()
 
 
 def lr_factor(step: int, config: TrainConfig) -> float:
@@ -304,7 +307,7 @@ def _train(
     step, loss_sum, loss_n, last_loss, val = start_step, 0.0, 0, math.nan, {}
     stopped_early, amp = False, config.amp != "off"
     net.train()
-    with bar:
+    with bar, GracefulStop() as interrupt:
         for inputs, targets in loader:
             x, y = device_batch(inputs, targets, spec, ctx.device)
             loss = train_step(net, optimizer, x, y, config.train_loss_start_step, config.grad_clip,
@@ -315,7 +318,7 @@ def _train(
             loss_n += 1
             clock.step()
             over_time = config.max_minutes > 0 and time.monotonic() - t0 > 60 * config.max_minutes
-            stop = distributed.agree(over_time, ctx)
+            stop = distributed.agree(over_time or interrupt.requested, ctx)
             final = stop or step == config.iterations
             row: dict[str, Any] = {}
             if step % config.log_every == 0 or final:
@@ -353,7 +356,7 @@ def _train(
                 break
     elapsed = time.monotonic() - t0
     bare = None
-    if config.bare_steps and step > start_step:
+    if config.bare_steps and step > start_step and not interrupt.requested:
         bare = bare_step_rate(
             model, x, y, windows=config.batch_size // ctx.world_size, lr=config.lr,
             loss_start_step=config.train_loss_start_step, grad_clip=config.grad_clip,
@@ -366,7 +369,8 @@ def _train(
         files.plot_curve()
         files.write_throughput(clock.samples_per_s, bare, data_path, ctx.world_size)
     return TrainResult(files.dir, step, elapsed, last_loss, best, val, stopped_early,
-                       clock.samples_per_s, bare, data_path)  # fmt: skip
+                       clock.samples_per_s, bare, data_path,
+                       interrupt.requested and stopped_early)  # fmt: skip
 
 
 def _checkpoint(
