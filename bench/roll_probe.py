@@ -68,6 +68,26 @@ def predict(model: torch.nn.Module, window: Window) -> np.ndarray:
         return model(x[None])[0].T.numpy().astype(np.float64)
 
 
+def firing(model: torch.nn.Module, window: Window) -> np.ndarray:
+    """Per layer, % of its neurons that fire per step, over steps >= START."""
+    with torch.no_grad():
+        x = encode_window(window, {**SPEC, "window_ms": window.num_steps})
+        _, spikes = model.forward_with_spikes(x[None])
+    return np.array([100.0 * float(s[..., START:].mean()) for s in spikes])
+
+
+def activity(model, window: Window, simulated_windows: list[Window]) -> None:
+    """Does the real window drive the network like simulated windows of its event rate?"""
+    rate = len(window.events) / window.num_steps
+    alike = [w for w in simulated_windows if 2 / 3 < len(w.events) / w.num_steps / rate < 1.5]
+    print(f"firing, % of neurons per step (layers 1..5), real at {rate:.0f} events/ms: "
+          + " / ".join(f"{v:.2f}" for v in firing(model, window)))  # fmt: skip
+    if alike:
+        sim = np.median([firing(model, w) for w in alike], axis=0)
+        print(f"  simulated test windows at {rate * 2 / 3:.0f}-{rate * 1.5:.0f} events/ms "
+              f"(median of {len(alike)}): " + " / ".join(f"{v:.2f}" for v in sim))  # fmt: skip
+
+
 def simulated(model, windows: list[Window], keep: float, fraction: float, seed: int) -> None:
     conditions: dict[str, Transform] = {
         "all": lambda w, rng: w,
@@ -136,11 +156,14 @@ def main() -> None:
     model, _ = load_checkpoint(args.checkpoint)
     model.eval()
     print(f"checkpoint {args.checkpoint}")
+    windows: list[Window] = []
     if args.data:
         windows = fixed_windows(args.data, "test")[: args.windows]
         simulated(model, windows, args.keep, args.box, args.seed)
     for spec in args.real:
-        real(model, real_recording(spec, args.real_ms))
+        window = real_recording(spec, args.real_ms)
+        real(model, window)
+        activity(model, window, windows)
 
 
 if __name__ == "__main__":
