@@ -61,18 +61,21 @@ def periphery(fraction: float) -> Transform:
     return lambda w, rng: thin(w, ~centre_mask(w.events, fraction))
 
 
+def encoded(window: Window) -> torch.Tensor:
+    """The network's input for a window, (1, 2, H, W, T)."""
+    return encode_window(window, {**SPEC, "window_ms": window.num_steps})[None]
+
+
 def predict(model: torch.nn.Module, window: Window) -> np.ndarray:
     """(T, 3) angular velocity, rad/s."""
     with torch.no_grad():
-        x = encode_window(window, {**SPEC, "window_ms": window.num_steps})
-        return model(x[None])[0].T.numpy().astype(np.float64)
+        return model(encoded(window))[0].T.numpy().astype(np.float64)
 
 
 def firing(model: torch.nn.Module, window: Window) -> np.ndarray:
     """Per layer, % of its neurons that fire per step, over steps >= START."""
     with torch.no_grad():
-        x = encode_window(window, {**SPEC, "window_ms": window.num_steps})
-        _, spikes = model.forward_with_spikes(x[None])
+        _, spikes = model.forward_with_spikes(encoded(window))
     return np.array([100.0 * float(s[..., START:].mean()) for s in spikes])
 
 

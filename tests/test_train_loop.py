@@ -19,6 +19,7 @@ from scipy.ndimage import gaussian_filter
 from typer.testing import CliRunner
 
 from spikegyro.cli import app
+from spikegyro.errors import InputError
 from spikegyro.evaluate.compare import training_info
 from spikegyro.events.io import write_recording
 from spikegyro.models.registry import build_model, load_checkpoint
@@ -427,11 +428,12 @@ def test_frozen_layers_keep_their_init_weights_while_the_rest_learn(dataset, tmp
         same = torch.equal(start[name], tuned[name])
         assert same == name.startswith(("conv1.", "conv2.", "conv3.", "conv4.")), name
     assert json.loads((tmp_path / "b" / "config.json").read_text())["freeze"] == 4
+    with pytest.raises(InputError, match="trained with freeze = 4, not 3"):
+        resume_config(tmp_path / "b", {"freeze": 3, "iterations": 9})
+    assert resume_config(tmp_path / "b", {"freeze": 4}).freeze == 4
 
 
 def test_config_errors_are_user_errors(tmp_path):
-    from spikegyro.errors import InputError
-
     with pytest.raises(InputError, match="--model"):
         resolve_config("paper", {"data": "x", "model": "lenet"})
     with pytest.raises(InputError, match="spikes"):

@@ -209,13 +209,24 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
+RUN_FIXED = ("model", "input", "model_kwargs", "freeze")
+"""Options a resumed run cannot change."""
+
+
 def resume_config(run_dir: Path, overrides: dict[str, Any] | None = None) -> TrainConfig:
     """The saved configuration of a run, with ``overrides`` (e.g. more iterations) applied."""
     path = run_dir / "config.json"
     if not path.exists():
         raise InputError(f"{run_dir}: no config.json; is this a training run directory?")
     data = load_config(path.read_text()).as_dict()
-    data.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    for name in RUN_FIXED:  # the saved weights and optimizer state belong to these
+        if name in given and given[name] != data[name]:
+            raise InputError(
+                f"--resume: {run_dir} was trained with {name} = {data[name]!r}, not "
+                f"{given[name]!r}; start a new run from it with --init {run_dir / 'last.pt'}."
+            )
+    data.update(given)
     data["sensor"] = tuple(data["sensor"])
     data["out"] = str(run_dir)  # the folder may have been moved since
     return TrainConfig(**data)
