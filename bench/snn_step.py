@@ -17,6 +17,8 @@ listed is the reference).
     .venv/bin/python bench/snn_step.py                   # 240x180 and 120x90, batch 1, 2 threads
     .venv/bin/python bench/snn_step.py --batch 16 --resolutions 240x180 --impls spikegyro
     .venv/bin/python bench/snn_step.py --device cuda
+    .venv/bin/python bench/snn_step.py --batch 8 --resolutions 240x180 \
+        --impls spikegyro spikegyro-freeze4
 """
 
 from __future__ import annotations
@@ -93,10 +95,15 @@ class SnnTorchSNN6(nn.Module):
 
 
 def _build(impl: str) -> nn.Module:
-    if impl == "spikegyro":
+    """``spikegyro``, ``spikegyro-freezeN`` (its first N spiking layers frozen, as ``train
+    --freeze N``) or ``snntorch``."""
+    if impl.startswith("spikegyro"):
         from spikegyro.models.snn6 import SNN6
 
-        return SNN6()
+        model = SNN6()
+        frozen = impl.removeprefix("spikegyro-freeze")
+        model.freeze(0 if frozen == impl else int(frozen))
+        return model
     return SnnTorchSNN6()
 
 
