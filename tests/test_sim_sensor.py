@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from dataclasses import replace
@@ -30,33 +29,52 @@ SMALL = Camera(48, 36, 40.0, 40.0, 24.0, 18.0)
 EXACT = EventSimConfig(mismatch_std=0.0, noise_std=0.0)
 
 
-def _digest(rec) -> str:
-    h = hashlib.sha256()
-    ev, gyro = rec.events, rec.gyro
-    for a in (ev.x, ev.y, ev.t, ev.p, gyro.t, gyro.omega):
-        h.update(np.ascontiguousarray(a).tobytes())
-    # scene_kind came later than the golden files; test_sim_dataset checks it.
-    attrs = {k: v for k, v in rec.attrs.items() if k not in ("generator", "scene_kind")}
-    h.update(json.dumps(attrs, sort_keys=True, default=str).encode())
-    return h.hexdigest()
+REFERENCE = Path(__file__).parent / "data" / "ideal_sensor_699393b.npz"
+"""Sequences 0 (photograph) and 4 (procedural) of seed 7 at 48x36, written by the simulator as it
+was before sensor presets existed (commit 699393b): events, gyro and attributes."""
 
 
-# Computed with the simulator as it was before sensor presets existed (commit 699393b): the
-# ideal sensor must keep giving these sequences, arrays and attributes, bit for bit.
-GOLDEN = {
-    0: "f8fe54a645be81a2cba9004e4c593c90511672d78539bbc2970ea0cb09b71d0c",  # photograph
-    4: "787da03748e93d0e73c12093de31fec8e14e264fcdb1e56cf2dc1c22a9ea83fb",  # procedural
-}
+def _matched_share(ref: dict[str, np.ndarray], ev, tol_us: int) -> float:
+    """Share of the reference events whose twin (same pixel, polarity and rank there) is within
+    ``tol_us`` microseconds."""
+
+    def ranked(x, y, p, t) -> dict[tuple[int, int], int]:
+        key = (np.asarray(y, np.int64) * 4096 + x) * 2 + p
+        order = np.lexsort((t, key))
+        key, t = key[order], np.asarray(t)[order]
+        rank = np.arange(key.size) - np.searchsorted(key, key)
+        return dict(zip(zip(key.tolist(), rank.tolist(), strict=True), t.tolist(), strict=True))
+
+    a = ranked(ref["x"], ref["y"], ref["p"], ref["t"])
+    b = ranked(ev.x, ev.y, ev.p, ev.t)
+    return sum(1 for k, t in a.items() if k in b and abs(b[k] - t) <= tol_us) / len(a)
 
 
 def test_ideal_sensor_reproduces_the_files_made_before_sensor_presets():
+    """Float32 rendering differs in the last bits between CPUs, which moves a crossing by a
+    microsecond or two, so events are matched within 5 us rather than bit for bit. Measured: a
+    relative error of 1e-6 on every rendered log intensity (ten float32 ulps) keeps every event
+    within 5 us, while changing the noise, eps or frame rate settings by 10 % leaves 12-39 %."""
     config = SimConfig(duration_ms=100, camera=Camera.scaled(48, 36))
     assert config == replace(config, sensor="ideal")
-    for index, digest in GOLDEN.items():
+    stored = np.load(REFERENCE)
+    for index, kind in ((0, "photo"), (4, "procedural")):
+        ref = {k.split("_", 1)[1]: stored[k] for k in stored.files if k.startswith(f"{index}_")}
         rec = simulate_sequence(config, index, seed=7, split="train")
         assert not any(k.startswith("sensor") for k in rec.attrs)
-        assert _digest(rec) == digest
-        assert rec.attrs["scene_kind"] == ("photo" if index == 0 else "procedural")
+        assert rec.attrs["scene_kind"] == kind  # came after the reference; test_sim_dataset too
+        ev = rec.events
+        assert abs(ev.t.size - ref["t"].size) <= 0.005 * ref["t"].size
+        assert _matched_share(ref, ev, tol_us=5) >= 0.99
+        np.testing.assert_array_equal(rec.gyro.t, ref["gyro_t"])
+        np.testing.assert_allclose(rec.gyro.omega, ref["gyro_omega"], rtol=1e-9, atol=1e-12)
+        attrs = json.loads(str(ref["attrs"]))
+        for key, value in attrs.items():
+            got = np.asarray(rec.attrs[key]).tolist()
+            if isinstance(value, str):
+                assert got == value, key
+            else:
+                np.testing.assert_allclose(got, value, rtol=1e-9, err_msg=key)
 
 
 def _ramp(cutoff_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
