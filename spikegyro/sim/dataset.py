@@ -431,8 +431,13 @@ def _local_runner(config: SimConfig, seed: int, compression: str | None, workers
 
 
 def _dask_runner(config: SimConfig, seed: int, compression: str | None, scheduler: str) -> Runner:
-    from distributed import Client
-    from distributed import as_completed as dask_completed
+    try:
+        from distributed import Client
+        from distributed import as_completed as dask_completed
+    except ImportError as err:
+        raise InputError(
+            "--scheduler needs Dask distributed: pip install 'spikegyro[distributed]'."
+        ) from err
 
     config_dict = config.to_dict()
 
