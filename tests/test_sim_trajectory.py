@@ -58,3 +58,52 @@ def test_arbitrary_samples_interpolate_linearly_and_rotation_composes():
     angle = so3_log(traj.rotation_at(0.2))
     np.testing.assert_allclose(angle, [0.0, 0.2 + 0.3, 0.0], atol=1e-9)
     np.testing.assert_allclose(so3_exp(so3_log(traj.rotation_at(0.13))), traj.rotation_at(0.13))
+
+
+def test_slow_rotations_span_their_speed_range_on_every_axis_equally():
+    from spikegyro.sim.trajectory import TrajectoryConfig
+
+    config = TrajectoryConfig(slow_share=1.0, slow_min_deg=5.0, slow_max_deg=100.0)
+    rng = np.random.default_rng(3)
+    start = np.degrees([random_trajectory(rng, 0.1, config).omega[0] for _ in range(4000)])
+    speed = np.linalg.norm(start, axis=1)
+    assert speed.min() >= 5.0 - 1e-9 and speed.max() <= 100.0 + 1e-9
+    # log-uniform: as many sequences below the geometric middle (22.4 deg/s) as above it
+    assert abs(np.mean(speed < np.sqrt(5.0 * 100.0)) - 0.5) < 0.03
+    # isotropic axis: each axis carries a third of the squared speed, roll included
+    share = (start**2).sum(0) / (speed**2).sum()
+    np.testing.assert_allclose(share, 1 / 3, atol=0.03)
+
+
+def test_slow_share_mixes_the_two_motions_and_zero_draws_nothing_more():
+    from spikegyro.sim.trajectory import TrajectoryConfig
+
+    paper = [random_trajectory(np.random.default_rng(s), 0.1).omega for s in range(5)]
+    same = [
+        random_trajectory(np.random.default_rng(s), 0.1, TrajectoryConfig(slow_share=0.0)).omega
+        for s in range(5)
+    ]
+    for a, b in zip(paper, same, strict=True):
+        np.testing.assert_array_equal(a, b)
+    mixed = TrajectoryConfig(slow_share=0.3)
+    rng = np.random.default_rng(4)
+    speeds = [
+        np.degrees(np.linalg.norm(random_trajectory(rng, 0.1, mixed).omega[0])) for _ in range(3000)
+    ]
+    # paper motion falls below 100 deg/s in about 16 % of sequences: 0.3 + 0.7 * 0.16 = 0.41
+    assert abs(np.mean(np.asarray(speeds) <= 100.0) - 0.41) < 0.04
+
+
+def test_slow_rotation_drifts_by_its_stated_share_per_second():
+    from spikegyro.sim.trajectory import TrajectoryConfig
+
+    config = TrajectoryConfig(slow_share=1.0, slow_accel_per_s=0.5)
+    rng = np.random.default_rng(5)
+    ratios = []
+    for _ in range(400):
+        traj = random_trajectory(rng, 0.5, config)
+        w0 = np.linalg.norm(traj.omega[0])
+        ratios.append(np.linalg.norm(traj.omega[-1] - traj.omega[0]) / w0)
+    # the acceleration, N(0, (0.5 |w0|)^2) per axis at knots 0.1 s apart and linear between,
+    # changes w by a fraction of itself of order 0.5 * 0.5 s: never more than a few times that
+    assert 0.05 < np.median(ratios) < 0.5

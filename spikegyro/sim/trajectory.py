@@ -186,12 +186,34 @@ class TrajectoryConfig:
     mean ‖ω‖ ≈ 225 deg/s, with a tail past 800 deg/s (≈0.2% of sequences). The angular
     acceleration is piecewise linear through knots every ``accel_knot_s`` seconds, each
     N(0, ``accel_std_deg``²) per axis, so ω drifts smoothly and slightly within a sequence.
+
+    A share ``slow_share`` of the sequences instead moves like a handheld camera or a robot: the
+    initial speed ‖ω‖ is log-uniform in [``slow_min_deg``, ``slow_max_deg``] deg/s about an axis
+    drawn uniformly from the sphere (so roll is as likely as tilt and pan), and the acceleration
+    knots have a standard deviation of ``slow_accel_per_s`` times that speed per second, so ω
+    drifts by about that share of itself in a second. With ``slow_share = 0`` (the default)
+    nothing more is drawn, so the paper's sequences stay exactly as they were.
     """
 
     omega_scale_deg: float = 107.0
     accel_std_deg: float = 150.0
     accel_knot_s: float = 0.1
     knot_s: float = 5e-4
+    slow_share: float = 0.0
+    slow_min_deg: float = 5.0
+    slow_max_deg: float = 100.0
+    slow_accel_per_s: float = 0.5
+
+    def validate(self) -> None:
+        """Raise ValueError naming the first setting out of its range."""
+        if not 0.0 <= self.slow_share <= 1.0:
+            raise ValueError(f"slow share {self.slow_share} must lie in [0, 1]")
+        if not 0.0 < self.slow_min_deg <= self.slow_max_deg:
+            raise ValueError(
+                f"slow speeds {self.slow_min_deg}-{self.slow_max_deg} deg/s: need 0 < min <= max"
+            )
+        if min(self.omega_scale_deg, self.accel_std_deg, self.slow_accel_per_s) < 0:
+            raise ValueError("angular speed and acceleration scales must not be negative")
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
@@ -218,12 +240,31 @@ def random_trajectory(
     ``r0`` defaults to a uniformly random start orientation.
     """
     config = config or TrajectoryConfig()
-    omega0 = rng.laplace(0.0, config.omega_scale_deg * DEG, size=3)
     n_acc = int(np.ceil(duration_s / config.accel_knot_s)) + 1
-    acc_t = np.arange(n_acc) * config.accel_knot_s
-    acc = rng.normal(0.0, config.accel_std_deg * DEG, size=(n_acc, 3))
+    if config.slow_share > 0 and rng.random() < config.slow_share:
+        log_lo, log_hi = np.log(config.slow_min_deg), np.log(config.slow_max_deg)
+        speed = np.exp(rng.uniform(log_lo, log_hi)) * DEG
+        axis = rng.standard_normal(3)
+        omega0 = speed * axis / np.linalg.norm(axis)
+        acc = rng.normal(0.0, config.slow_accel_per_s * speed, size=(n_acc, 3))
+    else:
+        omega0 = rng.laplace(0.0, config.omega_scale_deg * DEG, size=3)
+        acc = rng.normal(0.0, config.accel_std_deg * DEG, size=(n_acc, 3))
     if r0 is None:
         r0 = random_rotation(rng)
+    return _integrated(omega0, np.arange(n_acc) * config.accel_knot_s, acc, r0, duration_s, config)
+
+
+def _integrated(
+    omega0: np.ndarray,
+    acc_t: np.ndarray,
+    acc: np.ndarray,
+    r0: np.ndarray,
+    duration_s: float,
+    config: TrajectoryConfig,
+) -> Trajectory:
+    """The trajectory from ``omega0`` (3,) rad/s under an acceleration (rad/s²) linear between
+    its knots ``acc_t`` (s), tabulated every ``config.knot_s``."""
     n = max(1, int(np.ceil(duration_s / config.knot_s)))
     t = np.linspace(0.0, duration_s, n + 1)
     # ω = ω0 + ∫α; α is linear between its knots, so the trapezoid rule on a grid that contains
