@@ -1,20 +1,24 @@
 """The ``spikegyro`` command line: one Typer app over every stage of the pipeline.
 
 Each stage keeps its commands in its own ``commands`` module; this file only wires them up and
-turns :class:`~spikegyro.errors.InputError` into one line on stderr and exit code 2.
+keeps the error contract for all of them in one place (:func:`run`): bad input
+(:class:`~spikegyro.errors.InputError` or a usage error) is one line ``error: ...`` on stderr and
+exit code 2; Ctrl-C is one line and exit code 130; anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
 
 import importlib
 import sys
+import warnings
+from collections.abc import Sequence
 from typing import Any
 
 import typer
 from typer.core import TyperGroup
 
 from spikegyro import __version__
-from spikegyro.errors import InputError
+from spikegyro.errors import InputError, InputWarning, Interrupted, is_interrupt
 
 _COMMANDS: dict[str, str] = {
     "info": "spikegyro.events.commands:info",
@@ -39,6 +43,15 @@ pay for torch or matplotlib."""
 
 
 class _LazyGroup(TyperGroup):
+    def invoke(self, ctx: typer.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except (KeyboardInterrupt, SystemError) as exc:
+            # Typer would turn Ctrl-C into a bare exit code, and Numba into a SystemError.
+            if is_interrupt(exc):
+                raise Interrupted() from exc
+            raise
+
     def list_commands(self, ctx: typer.Context) -> list[str]:
         return [*super().list_commands(ctx), *_COMMANDS]
 
@@ -88,28 +101,74 @@ def _root(
     _state["debug"] = debug
 
 
-def main() -> None:
-    """Entry point: run the app, printing user errors as one line (exit 2)."""
+def _show_warning(message: Any, category: type, *args: Any, **kwargs: Any) -> None:
+    if issubclass(category, InputWarning):
+        typer.echo(f"warning: {message}", err=True)
+    else:
+        _default_showwarning(message, category, *args, **kwargs)
+
+
+_default_showwarning = warnings.showwarning
+
+
+EXIT_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _usage_error(exc: Exception) -> int:
+    """A usage error (unknown option, value out of range) as one line; its code is kept."""
+    if type(exc).__name__ == "NoArgsIsHelpError":  # a bare group: its help is the answer
+        exc.show()  # type: ignore[attr-defined]
+        return int(exc.exit_code)  # type: ignore[attr-defined]
+    ctx = getattr(exc, "ctx", None)
+    hint = f" (see '{ctx.command_path} --help')" if ctx is not None else ""
+    typer.echo(f"error: {_one_line(exc.format_message())}{hint}", err=True)  # type: ignore[attr-defined]
+    return EXIT_INPUT
+
+
+def run(argv: Sequence[str] | None = None) -> int:
+    """Run the command line on ``argv`` (default ``sys.argv[1:]``); returns the exit code.
+
+    Only bad input and Ctrl-C are caught here; with ``--debug`` bad input shows its traceback.
+    """
+    _state["debug"] = False
+    warnings.showwarning = _show_warning
     try:
-        app(standalone_mode=False)
+        code = app(args=None if argv is None else list(argv), standalone_mode=False)
     except InputError as exc:
         if _state["debug"]:
             raise
-        typer.echo(f"error: {exc}", err=True)
-        sys.exit(2)
-    except typer.Abort:
-        typer.echo("aborted", err=True)
-        sys.exit(130)
+        typer.echo(f"error: {_one_line(str(exc))}", err=True)
+        return EXIT_INPUT
+    except (Interrupted, KeyboardInterrupt, typer.Abort):
+        typer.echo("interrupted (Ctrl-C); stopped.", err=True)
+        return EXIT_INTERRUPTED
     except typer.Exit as exc:
-        sys.exit(exc.exit_code)
+        return exc.exit_code
     except Exception as exc:
-        # Usage errors carry their own message and exit code. Recent Typer vendors Click, so
-        # its exceptions are not click.ClickException: recognise them by their interface.
-        show, code = getattr(exc, "show", None), getattr(exc, "exit_code", None)
-        if callable(show) and isinstance(code, int):
-            show()
-            sys.exit(code)
+        # Recent Typer vendors Click, so its usage errors are not click.ClickException:
+        # recognise them by their interface.
+        if callable(getattr(exc, "format_message", None)) and isinstance(
+            getattr(exc, "exit_code", None), int
+        ):
+            return _usage_error(exc)
         raise
+    # Non-standalone Typer returns the code of a typer.Exit (train's 130) instead of exiting.
+    return code if isinstance(code, int) else 0
+
+
+def main() -> None:
+    """Entry point: exit with :func:`run`'s code."""
+    try:
+        code = run()
+    except KeyboardInterrupt:  # before or after a command, outside Typer
+        typer.echo("interrupted (Ctrl-C); stopped.", err=True)
+        code = EXIT_INTERRUPTED
+    sys.exit(code)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""The one exception type that the command line turns into a one-line message."""
+"""The exception types that the command line turns into one line, and how it recognises Ctrl-C."""
 
 from __future__ import annotations
 
@@ -9,6 +9,26 @@ class InputError(ValueError):
     The message is a complete sentence that names the offending file or value and says how to
     fix it; the command line prints it on one line and exits with code 2.
     """
+
+
+class Interrupted(Exception):
+    """Ctrl-C stopped a command; the command line exits with code 130.
+
+    Deliberately not a :class:`KeyboardInterrupt`: the command line framework would otherwise
+    swallow it into a bare exit code before a message can be printed.
+    """
+
+
+def is_interrupt(exc: BaseException) -> bool:
+    """Whether ``exc`` is Ctrl-C, directly or wrapped: compiled (Numba) code that a SIGINT
+    interrupts re-raises the pending :class:`KeyboardInterrupt` as a ``SystemError`` whose cause
+    or context it is."""
+    if isinstance(exc, (KeyboardInterrupt, Interrupted)):
+        return True
+    if not isinstance(exc, SystemError):
+        return False
+    cause = exc.__cause__ or exc.__context__
+    return cause is not None and cause is not exc and is_interrupt(cause)
 
 
 class InputWarning(UserWarning):
