@@ -23,14 +23,17 @@ read at disk speed and :func:`iter_event_chunks` streams them in bounded memory.
 
 from __future__ import annotations
 
+import functools
+import inspect
 import json
 import os
 import tempfile
-from collections.abc import Iterator
+import zipfile
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import h5py
 import numpy as np
@@ -59,6 +62,49 @@ _CAMERA_SUFFIXES = {
 }
 
 
+_LOW_LEVEL_ERRORS = (OSError, ValueError, KeyError, IndexError, EOFError, zipfile.BadZipFile)
+"""What parsers, h5py and NumPy raise for a damaged or foreign file."""
+_Reader = TypeVar("_Reader", bound=Callable[..., Any])
+
+
+def _unreadable(path: Any, exc: BaseException) -> InputError:
+    detail = " ".join(str(exc).split()) or type(exc).__name__
+    return InputError(
+        f"{path}: cannot be read ({type(exc).__name__}: {detail[:200]}); check that it is a "
+        "complete file of a supported format (see spikegyro info --help)."
+    )
+
+
+def reader_boundary(function: _Reader) -> _Reader:
+    """Turn what a damaged or foreign file makes the low-level libraries raise into one
+    :class:`InputError` naming the file (the first argument); generators are guarded too.
+
+    Applied to the public readers only, so the commands never see a parser's exception."""
+    if inspect.isgeneratorfunction(function):
+
+        @functools.wraps(function)
+        def generator(path: Any, *args: Any, **kwargs: Any) -> Iterator[Any]:
+            try:
+                yield from function(path, *args, **kwargs)
+            except InputError:
+                raise
+            except _LOW_LEVEL_ERRORS as exc:
+                raise _unreadable(path, exc) from exc
+
+        return generator  # type: ignore[return-value]
+
+    @functools.wraps(function)
+    def plain(path: Any, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return function(path, *args, **kwargs)
+        except InputError:
+            raise
+        except _LOW_LEVEL_ERRORS as exc:
+            raise _unreadable(path, exc) from exc
+
+    return plain  # type: ignore[return-value]
+
+
 EVENT_FILE_HELP = (
     "Event file: .h5/.hdf5, .npz, events.txt (t x y p), an ECD folder, .aedat4, jAER .aedat, "
     "Prophesee .raw/.dat or a ROS .bag (the format is detected from the content)."
@@ -78,6 +124,7 @@ def _sniff_camera(path: Path) -> str | None:
     return None
 
 
+@reader_boundary
 def detect_format(path: str | os.PathLike) -> str:
     """Name the format of ``path`` from its extension and, for text, its first data line."""
     path = Path(path)
@@ -166,10 +213,31 @@ def _parse_text_block(path: Path, data: bytes, ncols: int) -> np.ndarray:
             and not ln.lstrip().startswith("#")
             and not any(c.isalpha() and c not in "eE" for c in ln)
         )
-    values = np.array(text.split(), dtype=np.float64)
+    try:
+        values = np.array(text.split(), dtype=np.float64)
+    except ValueError:
+        raise InputError(
+            f"{path}: the line '{_first_bad_line(text, ncols)}' is not {ncols} numbers; fix or "
+            "remove it."
+        ) from None
     if values.size % ncols:
-        raise InputError(f"{path}: a line does not have {ncols} numbers; the file is malformed.")
+        raise InputError(
+            f"{path}: the line '{_first_bad_line(text, ncols)}' does not have {ncols} numbers; "
+            "fix or remove it."
+        )
     return values.reshape(-1, ncols)
+
+
+def _first_bad_line(text: str, ncols: int) -> str:
+    for line in text.splitlines():
+        fields = line.split()
+        try:
+            [float(v) for v in fields]
+        except ValueError:
+            return line.strip()[:80]
+        if fields and len(fields) != ncols:
+            return line.strip()[:80]
+    return "?"
 
 
 def _events_from_rows(rows: np.ndarray, sensor: tuple[int, int], source: str) -> EventArray:
@@ -197,6 +265,7 @@ def read_gyro(path: str | os.PathLike, *, imu_to_camera: np.ndarray | None = Non
     return gyro
 
 
+@reader_boundary
 def read_gyro_if_any(
     path: str | os.PathLike, *, imu_to_camera: np.ndarray | None = None
 ) -> GyroTrace | None:
@@ -216,11 +285,7 @@ def read_gyro_if_any(
                 gyro = _read_gyro_text(path / name, gkind)
                 break
     elif kind == "hdf5":
-        try:
-            f = h5py.File(path, "r")
-        except OSError as exc:
-            raise InputError(f"{path}: not a readable HDF5 file ({exc}).") from None
-        with f:
+        with open_hdf5(path) as f:
             if "ang_xyz" in f or "ang_ts" in f:
                 _require_keys(f, ("ang_xyz", "ang_ts"), path)
                 gyro = GyroTrace.from_arrays(f["ang_ts"][()], f["ang_xyz"][()], source=str(path))
@@ -248,22 +313,24 @@ def _hdf5_sensor(f: h5py.File, sensor: tuple[int, int] | None) -> tuple[int, int
     return DEFAULT_SENSOR
 
 
-def _open_hdf5(path: str | os.PathLike) -> h5py.File:
+def open_hdf5(path: str | os.PathLike) -> h5py.File:
+    """``path`` opened read-only with h5py, or an :class:`InputError` saying it is not HDF5."""
     try:
         return h5py.File(path, "r")
     except OSError as exc:
         raise InputError(f"{path}: not a readable HDF5 file ({exc}).") from None
 
 
+@reader_boundary
 def read_hdf5_attrs(path: str | os.PathLike) -> dict[str, Any]:
     """The attributes of an HDF5 event file as :func:`read_recording` gives them, without
     reading its arrays."""
-    with _open_hdf5(path) as f:
+    with open_hdf5(path) as f:
         return _h5_attrs(f)
 
 
 def _read_hdf5(path: Path, sensor: tuple[int, int] | None) -> Recording:
-    with _open_hdf5(path) as f:
+    with open_hdf5(path) as f:
         _require_keys(f, ("ev_xy", "ev_ts", "ev_pol"), path)
         xy = f["ev_xy"][()]
         if xy.ndim != 2 or xy.shape[1] != 2:
@@ -303,6 +370,12 @@ def _read_npz(path: Path, sensor: tuple[int, int] | None) -> Recording:
         missing = [k for k in ("x", "y", "t", "p") if k not in data]
         if missing:
             raise InputError(f"{path}: .npz lacks array(s) {', '.join(missing)}; need x, y, t, p.")
+        if ("width" in data) != ("height" in data):
+            raise InputError(f"{path}: .npz has one of width and height; store both or neither.")
+        if ("gyro_t" in data) != ("gyro_omega" in data):
+            raise InputError(
+                f"{path}: .npz has one of gyro_t and gyro_omega; store both or neither."
+            )
         width, height = sensor or (
             (int(data["width"]), int(data["height"])) if "width" in data else DEFAULT_SENSOR
         )
@@ -312,7 +385,10 @@ def _read_npz(path: Path, sensor: tuple[int, int] | None) -> Recording:
         gyro = None
         if "gyro_t" in data:
             gyro = GyroTrace.from_arrays(data["gyro_t"], data["gyro_omega"], source=str(path))
-        attrs = json.loads(str(data["attrs"])) if "attrs" in data else {}
+        try:
+            attrs = json.loads(str(data["attrs"])) if "attrs" in data else {}
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{path}: .npz attrs is not JSON ({exc.msg}).") from None
     return Recording(events=events, gyro=gyro, attrs=attrs)
 
 
@@ -324,6 +400,7 @@ def recording_name(path: Path) -> str:
     return path.stem
 
 
+@reader_boundary
 def read_recording(
     path: str | os.PathLike,
     *,
@@ -378,6 +455,7 @@ def _read_other(path: Path, kind: str, sensor: tuple[int, int] | None) -> Record
     return Recording(events=events, gyro=gyro)
 
 
+@reader_boundary
 def iter_event_chunks(
     path: str | os.PathLike,
     *,
@@ -404,7 +482,7 @@ def iter_event_chunks(
         return chunk
 
     if kind == "hdf5":
-        with h5py.File(path, "r") as f:
+        with open_hdf5(path) as f:
             _require_keys(f, ("ev_xy", "ev_ts", "ev_pol"), path)
             width, height = _hdf5_sensor(f, sensor)
             n = f["ev_ts"].shape[0]

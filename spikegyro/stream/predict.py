@@ -18,13 +18,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-import h5py
 import numpy as np
 
 from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration, PinholeCamera
 from spikegyro.events.core import EventArray
-from spikegyro.events.io import detect_format, iter_event_chunks, read_gyro
+from spikegyro.events.io import detect_format, iter_event_chunks, open_hdf5, read_gyro
 from spikegyro.stream.stateful import StreamingSNN
 from spikegyro.stream.writer import PredictionWriter, write_predictions
 
@@ -229,7 +228,7 @@ def read_time_span(path: str | os.PathLike) -> tuple[int, int] | None:
     path = Path(path)
     kind = detect_format(path)
     if kind == "hdf5":
-        with h5py.File(path, "r") as f:
+        with open_hdf5(path) as f:
             ts = f.get("ev_ts")
             return (int(ts[0]), int(ts[-1])) if ts is not None and ts.shape[0] else None
     if kind in ("events_txt", "ecd_dir"):
