@@ -34,6 +34,8 @@ class SRMParams:
         tau_r: refractory time constant τr of ν.
         scale_rho: surrogate height (SLAYER's scaleRho); tau_rho: its width relative to θ.
         scale_ref: refractory depth relative to θ (ν[1] = −scale_ref·θ).
+        rho_cut: bound of the surrogate's support, as a share of its peak (0 = unbounded, SLAYER's;
+            see :func:`spikegyro.snn.functional.surrogate_half_width`).
     """
 
     tau_s: float
@@ -42,6 +44,7 @@ class SRMParams:
     scale_rho: float = 1.0
     tau_rho: float = TAU_RHO
     scale_ref: float = 2.0
+    rho_cut: float = 0.0
 
     @property
     def spiking(self) -> bool:
@@ -95,8 +98,9 @@ class _SRMLayer(nn.Module):
             return potential
         p = self.params
         return spike_fn(
-            potential, p.theta, self.ref_kernel, p.scale_rho, p.tau_rho, dim=0, overwrite=True
-        )
+            potential, p.theta, self.ref_kernel, p.scale_rho, p.tau_rho, dim=0, overwrite=True,
+            cut=p.rho_cut,
+        )  # fmt: skip
 
 
 class SRMConv(_SRMLayer):
