@@ -2,7 +2,8 @@
 
 Writable (by the output's extension): ``.h5``/``.hdf5`` (the official layout plus attributes),
 ``.npz``, ``.txt`` (events only, ``t x y p`` in seconds), a path without a suffix (an Event Camera
-Dataset folder: ``events.txt`` and ``gyro.txt``), and through the optional ``faery`` package
+Dataset folder: ``events.txt`` and ``gyro.txt``, written whole: an existing folder is refused,
+or replaced on ``force``), and through the optional ``faery`` package
 (extra ``spikegyro[aedat4-write]``): ``.aedat4`` (events and the gyro as an IMU stream),
 ``.raw`` (Prophesee EVT 3.0) and ``.dat`` (Prophesee DAT 2). The gyro (small: 24 kB per second
 at 1 kHz) is read first and held whole, rotated into the camera frame when ``imu_to_camera`` is
@@ -122,20 +123,65 @@ def _npz_sink(
 
 
 @contextmanager
-def _text_sink(path: Path, gyro: GyroTrace | None) -> Iterator[Sink]:
-    folder = path.suffix == ""
-    events_path = path / "events.txt" if folder else path
-    if folder:
-        path.mkdir(parents=True, exist_ok=True)
-    with atomic_path(events_path) as tmp, open(tmp, "w") as f:
+def _events_txt_sink(path: Path) -> Iterator[Sink]:
+    with atomic_path(path) as tmp, open(tmp, "w") as f:
 
         def write(ev: EventArray) -> None:
             table = np.column_stack([ev.t / 1e6, ev.x, ev.y, ev.p])
             np.savetxt(f, table, fmt=["%.6f", "%d", "%d", "%d"])
 
         yield write
-    if folder and gyro is not None:
-        write_gyro_txt(path / "gyro.txt", gyro)
+
+
+@contextmanager
+def _replaced_folder(path: Path) -> Iterator[Path]:
+    """Yield a scratch folder beside ``path``; once the block succeeds, it replaces ``path``
+    whole (an older folder there is removed), so no mix of old and new files is ever left."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    old = tmp.with_name(tmp.name + ".old")
+    try:
+        yield tmp
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; give mkdir's permissions
+        if path.exists():
+            os.replace(path, old)
+        os.replace(tmp, path)
+    finally:
+        for scratch in (tmp, old):
+            if scratch.exists():
+                shutil.rmtree(scratch)
+
+
+@contextmanager
+def _text_sink(path: Path, gyro: GyroTrace | None) -> Iterator[Sink]:
+    if path.suffix:
+        with _events_txt_sink(path) as write:
+            yield write
+        return
+    with _replaced_folder(path) as folder, _events_txt_sink(folder / "events.txt") as write:
+        yield write
+        if gyro is not None:
+            write_gyro_txt(folder / "gyro.txt", gyro)
+
+
+def _check_folder_output(src: Path, dst: Path, force: bool) -> None:
+    """An existing output folder is replaced whole, and only on ``force``."""
+    if not dst.exists():
+        return
+    if not dst.is_dir():
+        raise InputError(f"{dst}: exists and is not a folder; give a new path for the folder.")
+    names = sorted(p.name for p in dst.iterdir())
+    if names and not force:
+        shown = ", ".join(names[:4]) + (", ..." if len(names) > 4 else "")
+        raise InputError(
+            f"{dst}: the folder already holds {shown}; writing events.txt and gyro.txt there "
+            "would leave a mix of old and new files: give a new folder, or --force to replace "
+            "it whole."
+        )
+    if names and src.resolve().is_relative_to(dst.resolve()):
+        raise InputError(f"{dst}: the folder holds the input {src}; give another output folder.")
 
 
 def _faery_events(ev: EventArray, faery: Any) -> np.ndarray:
@@ -247,10 +293,12 @@ def convert(
     imu_to_camera: np.ndarray | None = None,
     chunk_events: int = 1_000_000,
     progress: Callable[[int], None] | None = None,
+    force: bool = False,
 ) -> tuple[int, int]:
     """Copy the events (and gyro) of ``src`` into ``dst``; returns (events, gyro samples).
 
-    ``progress`` is called with the number of events written after each chunk.
+    ``progress`` is called with the number of events written after each chunk. An output
+    folder that exists and is not empty is refused, or replaced whole when ``force`` is given.
     """
     src, dst = Path(src), Path(dst)
     if dst.suffix.lower() not in WRITABLE:
@@ -258,6 +306,8 @@ def convert(
     kind = detect_format(src)
     if src.resolve() == dst.resolve():
         raise InputError(f"{dst}: the output would overwrite the input.")
+    if dst.suffix == "":
+        _check_folder_output(src, dst, force)
     gyro = read_gyro_if_any(src, imu_to_camera=imu_to_camera)
     chunks = iter_event_chunks(src, sensor=sensor, chunk_events=chunk_events)
     first = next(chunks, None)

@@ -29,6 +29,7 @@ import numpy as np
 
 from spikegyro.errors import InputError
 from spikegyro.events.blocks import CameraHeader, EventBlock, ImuBlock, TimeUnwrapper
+from spikegyro.events.prophesee import warn_truncated
 
 FORMATS = ("jaer2", "jaer3")
 GYRO_LSB_PER_DPS = 32.8
@@ -58,22 +59,46 @@ def _chip_size(name: str) -> tuple[int, int] | None:
     return next((size for chip, size in _CHIP_SIZES if chip in key), None)
 
 
-def read_header(path: Path, fmt: str) -> CameraHeader:
-    """Parse the ``#`` header: version, chip (hence sensor size) and where the data start."""
+def _header_lines(path: Path) -> tuple[list[str], int, bool]:
+    """The ``#`` lines, the offset of the first data byte, and whether the header is whole.
+
+    AEDAT 2.0 headers end at ``#End Of ASCII Header`` or the first non-``#`` line, AEDAT 3.1
+    ones at ``#!END-HEADER``.
+    """
     lines: list[str] = []
+    ended = True
     with open(path, "rb") as f:
         while True:
             start = f.tell()
             line = f.readline(_HEADER_LIMIT)
+            if not line:
+                return lines, start, _whole_at_eof(lines, ended)
             if not line.startswith(b"#"):
-                offset = start
-                break
+                return lines, start, True
+            ended = line.endswith(b"\n")
             text = line.decode("latin-1").strip()
             lines.append(text)
-            if text.startswith("#!END-HEADER"):
-                offset = f.tell()
-                break
-        size = f.seek(0, 2)
+            if text.startswith(("#!END-HEADER", "#End Of ASCII Header")):
+                return lines, f.tell(), True
+
+
+def _whole_at_eof(lines: list[str], ended: bool) -> bool:
+    """Whether a header that runs to the end of the file is a recording without data, rather
+    than a file cut inside its header: its last line ended, jAER's ``<preferences>`` block
+    closed, and it is not AEDAT 3.1 (whose header has an end line)."""
+    text = "\n".join(lines)
+    prefs_open = "<preferences" in text and "</preferences>" not in text
+    return bool(lines) and ended and not prefs_open and not lines[0].startswith("#!AER-DAT3")
+
+
+def read_header(path: Path, fmt: str) -> CameraHeader:
+    """Parse the ``#`` header: version, chip (hence sensor size) and where the data start."""
+    lines, offset, whole = _header_lines(path)
+    if not whole:
+        raise InputError(
+            f"{path}: truncated: the file ends inside its text header, before any data; copy "
+            "the whole recording again."
+        )
     version = lines[0][len("#!AER-DAT") :] if lines else "?"
     if fmt == "jaer2" and not version.startswith("2"):
         raise InputError(
@@ -86,16 +111,10 @@ def read_header(path: Path, fmt: str) -> CameraHeader:
         if match:
             chip = match.group(1).rsplit(".", 1)[-1]
             break
-    if fmt == "jaer2":
-        if chip and _chip_size(chip) is None:
-            raise InputError(
-                f"{path}: chip '{chip}' is not supported; only DAVIS address layouts are read."
-            )
-        if (size - offset) % 8:
-            raise InputError(
-                f"{path}: truncated: {size - offset} data bytes is not a whole number of 8-byte "
-                "records."
-            )
+    if fmt == "jaer2" and chip and _chip_size(chip) is None:
+        raise InputError(
+            f"{path}: chip '{chip}' is not supported; only DAVIS address layouts are read."
+        )
     attrs = {"camera": chip, "aedat_version": version} if chip else {"aedat_version": version}
     return CameraHeader(fmt=fmt, sensor=_chip_size(chip), attrs=attrs, data_offset=offset)
 
@@ -120,6 +139,9 @@ def _iter_aedat2(
         f.seek(header.data_offset)
         while True:
             raw = f.read(8 * _BLOCK_RECORDS)
+            if len(raw) % 8:
+                warn_truncated(path, len(raw) % 8, "8-byte record")
+                raw = raw[: len(raw) - len(raw) % 8]
             if not raw:
                 break
             words = np.frombuffer(raw, dtype=">u4").reshape(-1, 2)
@@ -191,7 +213,8 @@ def _iter_aedat3(
             if not raw:
                 return
             if len(raw) < _PACKET_HEADER.itemsize:
-                raise InputError(f"{path}: truncated: the last packet header is incomplete.")
+                warn_truncated(path, len(raw), "packet header")
+                return
             h = np.frombuffer(raw, dtype=_PACKET_HEADER)[0]
             nbytes = int(h["capacity"]) * int(h["size"])
             if h["capacity"] < 0 or h["size"] < 0 or h["number"] > h["capacity"]:
@@ -201,12 +224,14 @@ def _iter_aedat3(
             if not wanted:
                 end = f.tell() + nbytes
                 if end > size:
-                    raise InputError(f"{path}: truncated: the last packet is incomplete.")
+                    warn_truncated(path, size - f.tell() + 28, "packet")
+                    return
                 f.seek(end)
                 continue
             data = f.read(nbytes)
             if len(data) < nbytes:
-                raise InputError(f"{path}: truncated: the last packet is incomplete.")
+                warn_truncated(path, len(data) + 28, "packet")
+                return
             overflow = np.int64(h["ts_overflow"]) << 31
             number = int(h["number"])
             if kind == 1:

@@ -1,13 +1,16 @@
-"""ROS bags (ROS 1 ``.bag``; ROS 2 bag folders) of ``dvs_msgs/EventArray`` and ``sensor_msgs/Imu``.
+"""ROS bags (ROS 1 ``.bag``; ROS 2 bag folders and ``.db3`` / ``.mcap`` files) of events and
+``sensor_msgs/Imu``.
 
 Read with the pure-Python ``rosbags`` package (extra ``spikegyro[rosbag]``), which needs no ROS
-installation. The ``dvs_msgs`` types (rpg_dvs_ros) are registered from their message
-definitions. Events come from the first ``dvs_msgs/EventArray`` topic (alphabetically), gyro
-samples (``angular_velocity``, rad/s, in the IMU message's frame: give ``--imu-to-camera``) from
-the first ``sensor_msgs/Imu`` topic, timestamps from each event's ``ts`` and each IMU message's
-header stamp, in µs since the epoch. ROS 1 event arrays are decoded straight from their bytes
-with NumPy (13 bytes per event); ROS 2 ones go through the library's deserializer (slower).
-Messages are read in the bag's order; ones out of time order are put back in order.
+installation. Events come from the first topic (alphabetically) of ``dvs_msgs/EventArray``
+(rpg_dvs_ros) or ``event_camera_msgs/EventPacket`` (the ROS event-camera drivers, decoded by
+:mod:`~spikegyro.events.event_packet`); both types are registered from their message
+definitions. Gyro samples (``angular_velocity``, rad/s, in the IMU message's frame: give
+``--imu-to-camera``) come from the first ``sensor_msgs/Imu`` topic. Timestamps: each event's
+``ts`` (EventArray) or the packet's time base plus the decoded time (EventPacket), each IMU
+message's header stamp, in µs. ROS 1 event arrays are decoded straight from their bytes with
+NumPy (13 bytes per event); other messages go through the library's deserializer. Messages are
+read in the bag's order; ones out of time order are put back in order.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import numpy as np
 
 from spikegyro.errors import InputError
 from spikegyro.events.blocks import CameraHeader, EventBlock, ImuBlock, optional_import
+from spikegyro.events.event_packet import DEFINITION, EVENT_PACKET, PacketDecoder
 
 FORMATS = ("rosbag",)
 EXTRA = "rosbag"
@@ -28,17 +32,29 @@ IMU = "sensor_msgs/msg/Imu"
 DVS_MSGS = {
     "dvs_msgs/msg/Event": "uint16 x\nuint16 y\ntime ts\nbool polarity\n",
     EVENT_ARRAY: "std_msgs/Header header\nuint32 height\nuint32 width\ndvs_msgs/Event[] events\n",
+    EVENT_PACKET: DEFINITION,
 }
+EVENT_TYPES = (EVENT_ARRAY, EVENT_PACKET)
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_SQLITE_MAGIC = b"SQLite format 3\x00"
 _ROS1_EVENT = np.dtype([("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u4"), ("p", "u1")])
 
 
 def sniff(path: Path, head: bytes) -> str | None:
-    """``rosbag`` for a ROS 1 bag or a ROS 2 bag folder (``metadata.yaml``), else None."""
-    if head.startswith(b"#ROSBAG V2"):
+    """``rosbag`` for a ROS 1 bag, a ROS 2 bag folder (``metadata.yaml``) or a ROS 2 storage
+    file (``.mcap``, or ``.db3`` SQLite), else None."""
+    if head.startswith((b"#ROSBAG V2", _MCAP_MAGIC)):
+        return "rosbag"
+    if head.startswith(_SQLITE_MAGIC) and path.suffix.lower() == ".db3":
         return "rosbag"
     if path.is_dir() and (path / "metadata.yaml").exists():
         return "rosbag"
     return None
+
+
+def _is_ros2(path: Path) -> bool:
+    # As rosbags decides: anything but a .bag file is ROS 2.
+    return path.suffix != ".bag"
 
 
 def typestore(ros2: bool = False) -> Any:
@@ -54,7 +70,7 @@ def typestore(ros2: bool = False) -> Any:
 
 def _open(path: Path) -> Any:
     highlevel = optional_import("rosbags.highlevel", EXTRA, path)
-    reader = highlevel.AnyReader([path], default_typestore=typestore(ros2=path.is_dir()))
+    reader = highlevel.AnyReader([path], default_typestore=typestore(ros2=_is_ros2(path)))
     try:
         reader.open()
     except Exception as exc:  # rosbags raises its own ReaderError types on bad or unindexed bags
@@ -64,7 +80,7 @@ def _open(path: Path) -> Any:
 
 def _topics(reader: Any) -> tuple[list[Any], list[Any]]:
     conns = sorted(reader.connections, key=lambda c: c.topic)
-    ev_topic = next((c.topic for c in conns if c.msgtype == EVENT_ARRAY), None)
+    ev_topic = next((c.topic for c in conns if c.msgtype in EVENT_TYPES), None)
     imu_topic = next((c.topic for c in conns if c.msgtype == IMU), None)
     return (
         [c for c in conns if c.topic == ev_topic],
@@ -73,23 +89,30 @@ def _topics(reader: Any) -> tuple[list[Any], list[Any]]:
 
 
 def read_header(path: Path, fmt: str) -> CameraHeader:
-    """Sensor size from the first event array; the event and IMU topics as attributes."""
+    """Sensor size from the first event message; the event and IMU topics as attributes."""
     reader = _open(path)
     try:
         ev_conns, imu_conns = _topics(reader)
-        attrs = {}
+        attrs: dict[str, Any] = {}
         sensor = None
         if ev_conns:
             attrs["events_topic"] = ev_conns[0].topic
             for conn, _, raw in reader.messages(connections=ev_conns):
-                msg = reader.deserialize(raw, conn.msgtype) if path.is_dir() else None
-                width, height = (
-                    (msg.width, msg.height) if msg is not None else _ros1_size(raw, path)
-                )
+                if conn.msgtype == EVENT_ARRAY and not _is_ros2(path):
+                    width, height = _ros1_size(raw, path)
+                else:
+                    msg = reader.deserialize(raw, conn.msgtype)
+                    width, height = msg.width, msg.height
+                    if conn.msgtype == EVENT_PACKET:
+                        attrs["events_encoding"] = str(msg.encoding)
                 sensor = (int(width), int(height))
                 break
         if imu_conns:
             attrs["imu_topic"] = imu_conns[0].topic
+    except InputError:
+        raise
+    except Exception as exc:
+        raise InputError(f"{path}: a corrupt or truncated ROS bag message ({exc}).") from None
     finally:
         reader.close()
     return CameraHeader(fmt=fmt, sensor=sensor, attrs=attrs)
@@ -137,34 +160,47 @@ def _deserialized_events(msg: Any) -> EventBlock:
     )
 
 
+def _event_decoder(path: Path, reader: Any, conn: Any) -> tuple[Any, PacketDecoder | None]:
+    """A function from a raw event message to its events, and the packet decoder if any."""
+    if conn.msgtype == EVENT_PACKET:
+        packets = PacketDecoder(str(path))
+        return lambda raw: packets.decode(reader.deserialize(raw, conn.msgtype)), packets
+    if _is_ros2(path):
+        return lambda raw: _deserialized_events(reader.deserialize(raw, conn.msgtype)), None
+    return lambda raw: _ros1_events(raw, path), None
+
+
+def _imu_block(msgs: list[Any]) -> ImuBlock:
+    """The gyro samples of deserialized Imu messages (stamps in µs, ω in rad/s)."""
+    t = [m.header.stamp.sec * 1_000_000 + m.header.stamp.nanosec // 1000 for m in msgs]
+    w = [(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z) for m in msgs]
+    return ImuBlock(t=np.array(t, dtype=np.int64), omega=np.array(w, dtype=np.float64))
+
+
 def iter_blocks(
     path: Path, header: CameraHeader, *, events: bool = True, imu: bool = True
 ) -> Iterator[EventBlock | ImuBlock]:
-    """One block per event-array message; IMU messages gathered a thousand at a time."""
+    """One block per event message; IMU messages gathered a thousand at a time. Once the bag is
+    read, EventPacket trigger counts are added to ``header.attrs``."""
     reader = _open(path)
     try:
         ev_conns, imu_conns = _topics(reader)
         wanted = (ev_conns if events else []) + (imu_conns if imu else [])
-        ev_types = {c.id for c in ev_conns}
-        imu_t: list[int] = []
-        imu_w: list[tuple[float, float, float]] = []
+        ev_ids = {c.id for c in ev_conns}
+        decode, packets = _event_decoder(path, reader, ev_conns[0]) if ev_conns else (None, None)
+        imu_msgs: list[Any] = []
         for conn, _, raw in reader.messages(connections=wanted):
-            if conn.id in ev_types:
-                if path.is_dir():
-                    yield _deserialized_events(reader.deserialize(raw, conn.msgtype))
-                else:
-                    yield _ros1_events(raw, path)
+            if conn.id in ev_ids:
+                yield decode(raw)
                 continue
-            msg = reader.deserialize(raw, conn.msgtype)
-            stamp = msg.header.stamp
-            imu_t.append(stamp.sec * 1_000_000 + stamp.nanosec // 1000)
-            w = msg.angular_velocity
-            imu_w.append((w.x, w.y, w.z))
-            if len(imu_t) >= 1000:
-                yield ImuBlock(t=np.array(imu_t, dtype=np.int64), omega=np.array(imu_w))
-                imu_t, imu_w = [], []
-        if imu_t:
-            yield ImuBlock(t=np.array(imu_t, dtype=np.int64), omega=np.array(imu_w))
+            imu_msgs.append(reader.deserialize(raw, conn.msgtype))
+            if len(imu_msgs) >= 1000:
+                yield _imu_block(imu_msgs)
+                imu_msgs = []
+        if imu_msgs:
+            yield _imu_block(imu_msgs)
+        if packets is not None and events:
+            packets.finish(header.attrs)
     except InputError:
         raise
     except Exception as exc:
