@@ -16,7 +16,7 @@ tolerating packets out of order by up to ``REORDER_US``) or into a whole :class:
 from __future__ import annotations
 
 import importlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from types import ModuleType
 from typing import Any
@@ -63,6 +63,8 @@ class CameraHeader:
         attrs: metadata worth keeping (strings and numbers), e.g. the camera model.
         data_offset: byte offset of the first data byte, for formats with a text header.
         encoding: the data's encoding where a format has several (e.g. ``evt3``).
+        guess_sensor: where ``sensor`` is None, a (costly) guess of it from the data, called
+            only when the user gives no size.
     """
 
     fmt: str
@@ -70,6 +72,7 @@ class CameraHeader:
     attrs: dict[str, Any] = field(default_factory=dict)
     data_offset: int = 0
     encoding: str = ""
+    guess_sensor: Callable[[], tuple[int, int]] | None = None
 
 
 def optional_import(module: str, extra: str, path: object) -> ModuleType:
@@ -116,8 +119,10 @@ class TimeUnwrapper:
 def sensor_of(
     header: CameraHeader, sensor: tuple[int, int] | None, path: object
 ) -> tuple[int, int]:
-    """The user's sensor size, else the file's; an error when neither says."""
+    """The user's sensor size, else the file's (or its guess); an error when none says."""
     size = sensor or header.sensor
+    if size is None and header.guess_sensor is not None:
+        size = header.guess_sensor()
     if size is None:
         raise InputError(
             f"{path}: the file does not record its sensor size; pass --width and --height."
