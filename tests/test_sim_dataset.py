@@ -195,3 +195,21 @@ def test_cli_simulate_export_show(tmp_path):
     assert res.exit_code == 0, res.output
     with Image.open(fig) as im:
         assert im.size[0] > 500 and im.size[1] > 500
+
+
+def test_cli_slow_share_makes_every_sequence_slow_and_is_recorded(tmp_path):
+    out = tmp_path / "slow"
+    args = ["simulate", "--out", str(out), "--sequences", "4", "--duration-ms", "100"]
+    size = ["--width", "32", "--height", "24"]
+    res = CliRunner().invoke(app, [*args, *size, "--slow-share", "1", "--slow-speed", "5", "40"])
+    assert res.exit_code == 0, res.output
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["config"]["trajectory"]["slow_share"] == 1.0
+    for split, index in [("train", 0), ("val", 0), ("test", 0)]:
+        path = sequence_path(out, split, index)
+        if path.exists():
+            speed = np.degrees(np.linalg.norm(read_recording(path).gyro.omega, axis=1))
+            # 5-40 deg/s at the start; the drift (0.5 x speed per s) stays within 10 % in 0.1 s
+            assert speed.min() > 4.0 and speed.max() < 45.0
+    res = CliRunner().invoke(app, [*args, *size, "--slow-speed", "40", "5"])
+    assert isinstance(res.exception, InputError) and "--slow-speed" in str(res.exception)

@@ -24,6 +24,7 @@ from spikegyro.sim.camera import Camera
 from spikegyro.sim.dataset import SimConfig, export_official, generate_dataset
 from spikegyro.sim.esim import EventSimConfig
 from spikegyro.sim.sensor import SENSOR_PRESETS, sensor_preset
+from spikegyro.sim.trajectory import TrajectoryConfig
 
 
 def _progress() -> Progress:
@@ -103,6 +104,16 @@ def simulate_dataset(
         help="With a sensor preset: weights of the scene kinds sparse,office,photo,procedural "
         "(e.g. 0.4,0.25,0.2,0.15) instead of the preset's.",
     ),
+    slow_share: float = typer.Option(
+        0.0,
+        "--slow-share",
+        min=0.0,
+        max=1.0,
+        help="Share of sequences moving like a handheld camera or robot (slow, smooth).",
+    ),
+    slow_speed: tuple[float, float] = typer.Option(
+        (5.0, 100.0), "--slow-speed", help="Their speed range MIN MAX, deg/s (log-uniform)."
+    ),
     contrast_mean: float = typer.Option(0.45, help="Mean contrast threshold (log units)."),
     contrast_std: float = typer.Option(0.05, help="Per-sequence threshold spread."),
     mismatch_std: float = typer.Option(0.03, min=0.0, help="Per-pixel threshold std."),
@@ -126,6 +137,7 @@ def simulate_dataset(
     config = SimConfig(
         duration_ms=duration_ms,
         camera=_camera(width, height, fx, fy, cx, cy),
+        trajectory=_trajectory(slow_share, slow_speed),
         contrast_mean=contrast_mean,
         contrast_std=contrast_std,
         events=EventSimConfig(
@@ -150,6 +162,17 @@ def simulate_dataset(
         scheduler=scheduler,
         compression=None if compression == "none" else compression,
     )
+
+
+def _trajectory(slow_share: float, slow_speed: tuple[float, float]) -> TrajectoryConfig:
+    config = TrajectoryConfig(
+        slow_share=slow_share, slow_min_deg=slow_speed[0], slow_max_deg=slow_speed[1]
+    )
+    try:
+        config.validate()
+    except ValueError as exc:
+        raise InputError(f"--slow-speed: {exc}.") from None
+    return config
 
 
 def simulate_with_progress(
