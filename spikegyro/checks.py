@@ -90,3 +90,18 @@ def check_device(name: str | None, option: str = "--device") -> str | None:
 
 def _or(items: tuple[str, ...]) -> str:
     return ", ".join(items[:-1]) + f" or {items[-1]}" if len(items) > 1 else items[0]
+
+
+def sensor_option(width: int | None, height: int | None) -> tuple[int, int] | None:
+    """``--width``/``--height`` as a sensor size: both or neither, each at least one pixel."""
+    if width is None and height is None:
+        return None
+    if width is None or height is None:
+        raise InputError("--width and --height go together; give both (pixels) or neither.")
+    if width < 1 or height < 1:
+        raise InputError(f"--width {width} --height {height}: a sensor is at least 1x1 pixels.")
+    return int(width), int(height)
+
+
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg", ".eps", ".ps")
+"""What matplotlib writes, by extension."""

@@ -31,6 +31,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from spikegyro.checks import check_output_dir
 from spikegyro.evaluate.commands import compare_runs, run_evaluation
 from spikegyro.events.io import atomic_path, write_recording
 from spikegyro.models.registry import PRETRAINED_SNN6
@@ -295,6 +296,7 @@ def demo_command(
     workers: int = typer.Option(DemoConfig.workers, min=1, help="Simulator processes."),
 ) -> None:
     """Events in, angular velocity out: score the shipped SNN-6, CMax and the mean, then stream."""
+    check_output_dir(out)
     run_demo(
         DemoConfig(
             out=out,

@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from spikegyro.baselines.cmax import CMaxConfig, camera_from_attrs, per_ms, predict_stream
+from spikegyro.checks import sensor_option
 from spikegyro.errors import InputError
 from spikegyro.events.calib import resolve_calibration
 from spikegyro.events.imu import IMU_TO_CAMERA_HELP, imu_rotation
@@ -88,7 +89,7 @@ def cmax_command(
     calibration, calib_file = resolve_calibration(events, calib, intrinsics)
     if calib_file is not None:
         console.print(f"using the calibration {calib_file}")
-    rec = read_recording(events, sensor=(width, height) if width and height else None)
+    rec = read_recording(events, sensor=sensor_option(width, height))
     if not len(rec.events):
         raise InputError(f"{events}: the file holds no events.")
     camera = calibration or camera_from_attrs(rec.attrs, *rec.events.sensor_size)

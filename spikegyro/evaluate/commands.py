@@ -28,6 +28,7 @@ from rich.console import Console
 from rich.progress import Progress
 
 from spikegyro.baselines.mean import mean_predictions, training_mean_omega
+from spikegyro.checks import check_device, check_output_dir
 from spikegyro.errors import InputError
 from spikegyro.evaluate import figures, metrics
 from spikegyro.evaluate.bins import SPEED_BIN_EDGES_DEG_S, bin_labels, empty_bins, per_bin_metrics
@@ -44,7 +45,7 @@ from spikegyro.evaluate.report import (
     write_report,
 )
 from spikegyro.evaluate.spikes import spike_statistics, spike_table
-from spikegyro.events.io import atomic_path
+from spikegyro.events.io import atomic_dir, atomic_path
 from spikegyro.events.plot import plot_events_and_omega
 from spikegyro.models.official import load_official
 from spikegyro.models.registry import CHECKPOINT_FORMAT, PRETRAINED_SNN6, load_checkpoint
@@ -267,7 +268,10 @@ def run_evaluation(
         The dict written to ``metrics.json``.
     """
     console = console or Console(stderr=True)
-    data_dir, out_dir = Path(data_dir), Path(out_dir)
+    data_dir, out_dir = Path(data_dir), check_output_dir(out_dir)
+    if batch_size < 1:
+        raise InputError(f"--batch-size {batch_size}: must be at least 1.")
+    check_device(device)
     if checkpoint is not None and model is not None:
         raise InputError("give either --checkpoint CKPT or --model cmax, not both.")
     if checkpoint is None and model is None:
@@ -360,11 +364,11 @@ def run_evaluation(
         "warnings": warnings,
     }
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    _write_predictions(out_dir / "predictions.npz", windows, pred, gt, mean_omega)
-    write_json(out_dir / "metrics.json", result)
-    example_refs = _example_figures(out_dir, windows, pred, picks, name)
-    _evaluation_report(out_dir, result, example_refs)
+    with atomic_dir(out_dir) as staging:
+        _write_predictions(staging / "predictions.npz", windows, pred, gt, mean_omega)
+        write_json(staging / "metrics.json", result)
+        example_refs = _example_figures(staging, windows, pred, picks, name)
+        _evaluation_report(staging, result, example_refs)
     print_summary(console, f"{data_dir} / {split}", [model_res, mean_res], warnings)
     console.print(f"wrote {out_dir}/metrics.json, predictions.npz, report.html, report.md")
     return result
@@ -429,9 +433,9 @@ def evaluate(
     split: str = typer.Option("test", "--split", help="train, val or test."),
     out: Path = typer.Option(..., "--out", help="Output folder."),
     name: str = typer.Option(None, "--name", help="Model name in tables and legends."),
-    batch_size: int = typer.Option(8, "--batch-size", help="Windows per forward pass."),
+    batch_size: int = typer.Option(8, "--batch-size", min=1, help="Windows per forward pass."),
     device: str = typer.Option(None, "--device", help="cpu, cuda, cuda:1 (default: auto)."),
-    limit: int = typer.Option(None, "--limit", help="Score only the first N windows."),
+    limit: int = typer.Option(None, "--limit", min=1, help="Score only the first N windows."),
     example: list[int] = typer.Option(
         None, "--example", help="Window index for a qualitative figure (repeatable)."
     ),

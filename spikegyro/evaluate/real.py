@@ -46,6 +46,7 @@ from rich.progress import Progress
 
 from spikegyro.baselines import cmax
 from spikegyro.baselines.mean import training_mean_omega
+from spikegyro.checks import check_input, check_output_dir, sensor_option
 from spikegyro.errors import InputError
 from spikegyro.evaluate import metrics
 from spikegyro.evaluate.bins import SPEED_BIN_EDGES_DEG_S, bin_labels, empty_bins, per_bin_metrics
@@ -66,7 +67,7 @@ from spikegyro.events.imu import (
     shift_gyro,
     window_means,
 )
-from spikegyro.events.io import read_gyro, read_recording
+from spikegyro.events.io import atomic_dir, read_gyro, read_recording
 from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_streaming_model
 from spikegyro.stream.predict import WARMUP_STEPS, StreamPredictor, event_mapper, model_camera
 
@@ -292,8 +293,9 @@ def run_real_evaluation(
     """
     config = config or RealEvalConfig()
     console = console or Console(stderr=True)
-    recording, out_dir = Path(recording), Path(out_dir)
+    recording, out_dir = Path(recording), check_output_dir(out_dir)
     checkpoint = Path(checkpoint) if checkpoint is not None else DEFAULT_CHECKPOINT
+    check_input(checkpoint, "--checkpoint")
     if (config.windows_ms is None) == (config.windows_events is None):
         raise InputError("give one of --windows-ms MS and --windows-events N.")
     if config.end_s is not None and config.end_s <= config.start_s:
@@ -496,12 +498,12 @@ def run_real_evaluation(
         },
         "warnings": warnings,
     }
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_tables(out_dir, ends, scored, gt, per_ms, w_starts, w_ends, num_events, win_ok,
-                  w_gt, window_pred)  # fmt: skip
-    write_json(out_dir / "metrics.json", result)
-    write_figures(out_dir, result, t0, ends, per_ms, trace, w_starts, w_ends, cmax_win)
-    write_real_report(out_dir, result)
+    with atomic_dir(out_dir) as staging:
+        write_tables(staging, ends, scored, gt, per_ms, w_starts, w_ends, num_events, win_ok,
+                     w_gt, window_pred)  # fmt: skip
+        write_json(staging / "metrics.json", result)
+        write_figures(staging, result, t0, ends, per_ms, trace, w_starts, w_ends, cmax_win)
+        write_real_report(staging, result)
     print_summary(
         console,
         f"{recording}: {int(scored.sum())} steps, {int(win_ok.sum())} windows",
@@ -556,7 +558,7 @@ def evaluate_real(
     start: float = typer.Option(0.0, "--start", help="Start, seconds after the first event."),
     end: float = typer.Option(None, "--end", help="End, seconds after the first event."),
     warmup_ms: int = typer.Option(
-        WARMUP_STEPS, "--warmup-ms", help="Steps (ms) after --start that are not scored."
+        WARMUP_STEPS, "--warmup-ms", min=0, help="Steps (ms) after --start that are not scored."
     ),
     imu_to_camera: str = typer.Option(None, "--imu-to-camera", help=IMU_TO_CAMERA_HELP),
     gyro_offset: str = typer.Option(
@@ -596,5 +598,5 @@ def evaluate_real(
         imu_to_camera=imu_to_camera,
         mean_data=mean_data,
         config=config,
-        sensor=(width, height) if width and height else None,
+        sensor=sensor_option(width, height),
     )

@@ -17,6 +17,7 @@ OpenCV's "plumb bob" (radial-tangential), with coefficients (k1, k2, p1, p2, k3)
 from __future__ import annotations
 
 import functools
+import math
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -197,9 +198,16 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
             f"{path}: {len(values)} numbers; expected 'fx fy cx cy k1 k2 p1 p2 k3' (the Event "
             "Camera Dataset's calib.txt), 8 without k3, or 4 for a pinhole."
         )
-    calib = Calibration(*values)
-    if calib.fx <= 0 or calib.fy <= 0:
-        raise InputError(f"{path}: focal lengths must be positive, got {calib.fx}, {calib.fy}.")
+    return _checked(Calibration(*values), str(path))
+
+
+def _checked(calib: Calibration, source: str) -> Calibration:
+    values = (calib.fx, calib.fy, calib.cx, calib.cy)
+    if not all(math.isfinite(v) for v in values) or calib.fx <= 0 or calib.fy <= 0:
+        raise InputError(
+            f"{source}: focal lengths must be positive and finite, got fx {calib.fx}, fy "
+            f"{calib.fy}; give the sensor's fx fy cx cy in pixels."
+        )
     return calib
 
 
@@ -217,7 +225,9 @@ def resolve_calibration(
     if calib is not None and intrinsics is not None:
         raise InputError("--calib and --intrinsics: give one of them, not both.")
     if intrinsics is not None:
-        return Calibration(*intrinsics), None
+        return _checked(
+            Calibration(*intrinsics), f"--intrinsics {' '.join(map(str, intrinsics))}"
+        ), None
     if calib is None and (Path(events) / "calib.txt").is_file():
         calib = Path(events) / "calib.txt"
     if calib is None:

@@ -14,11 +14,12 @@ from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from spikegyro.checks import check_output_dir, check_output_file, sensor_option
 from spikegyro.errors import InputError
 from spikegyro.events import stats
 from spikegyro.events.convert import convert
 from spikegyro.events.imu import IMU_TO_CAMERA_HELP, imu_rotation
-from spikegyro.events.io import atomic_path, detect_format, read_recording, recording_name
+from spikegyro.events.io import atomic_dir, detect_format, read_recording, recording_name
 
 
 def info(
@@ -31,7 +32,7 @@ def info(
     height: int = typer.Option(None, help="Sensor height in pixels (text files default to 180)."),
 ) -> None:
     """Print sensor size, event count, duration, rate, polarity balance and gyro statistics."""
-    sensor = (width, height) if width and height else None
+    sensor = sensor_option(width, height)
     rec = read_recording(path, sensor=sensor)
     ev = rec.events
     table = Table(title=f"{path} ({detect_format(path)})", show_header=False)
@@ -74,9 +75,16 @@ def convert_command(
         help=IMU_TO_CAMERA_HELP,
     ),
     chunk_events: int = typer.Option(1_000_000, min=1, help="Events per chunk (bounds memory)."),
+    force: bool = typer.Option(
+        False, "--force", help="Replace an existing output folder whole (refused without it)."
+    ),
 ) -> None:
     """Convert an event recording between formats, streaming it in bounded memory."""
-    sensor = (width, height) if width and height else None
+    sensor = sensor_option(width, height)
+    if dst.suffix:
+        check_output_file(dst, "OUT")
+    else:
+        check_output_dir(dst, "OUT")
     rotation = imu_rotation(imu_to_camera) if imu_to_camera else None
     console = Console(stderr=True)
     columns = [
@@ -94,6 +102,7 @@ def convert_command(
             imu_to_camera=rotation,
             chunk_events=chunk_events,
             progress=lambda n: progress.update(task, completed=n),
+            force=force,
         )
     wall = time.perf_counter() - wall
     console.print(
@@ -132,7 +141,8 @@ def compare_stats(
     from spikegyro.events.plot import stats_figure
 
     console = Console(stderr=True)
-    sensor = (width, height) if width and height else None
+    sensor = sensor_option(width, height)
+    check_output_dir(out)
     files = sorted(p for p in Path(sim).rglob("*") if p.suffix.lower() in (".h5", ".hdf5"))
     if not files:
         raise InputError(f"{sim}: no .h5 sequence files; simulate one with `spikegyro simulate`.")
@@ -165,13 +175,11 @@ def compare_stats(
             for (name, ws), path in zip(real_windows.items(), real, strict=True)
         },
     }
-    out.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out / "stats.json") as tmp:
-        tmp.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     fig = stats_figure(real_windows, sim_windows, stats.IEI_EDGES_US, stats.RATE_EDGES_HZ,
                        sim_label=f"simulator ({Path(sim).name})")  # fmt: skip
-    with atomic_path(out / "sim_vs_real.png") as tmp:
-        fig.savefig(tmp, dpi=90, format="png", metadata={"Software": None})
+    with atomic_dir(out) as staging:
+        (staging / "stats.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+        fig.savefig(staging / "sim_vs_real.png", dpi=90, format="png", metadata={"Software": None})
     table = Table(title=f"median over {window_ms:g} ms windows (5th/95th percentiles: stats.json)")
     for col in ("data", "windows", "events/ms", "ON frac.", "top 1 % share", "coverage",
                 "IEI median [ms]"):  # fmt: skip

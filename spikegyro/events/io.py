@@ -27,6 +27,7 @@ import functools
 import inspect
 import json
 import os
+import shutil
 import tempfile
 import zipfile
 from collections.abc import Callable, Iterator
@@ -542,6 +543,22 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+@contextmanager
+def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield an empty temporary folder beside ``path``; only if the block succeeds are its files
+    moved into ``path`` (created if missing). A failed or interrupted run adds nothing."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        yield tmp
+        path.mkdir(exist_ok=True)
+        for entry in sorted(tmp.iterdir()):
+            os.replace(entry, path / entry.name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _to_h5_attr(value: Any) -> Any:

@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from spikegyro.checks import check_output_file
 from spikegyro.models.nir import export_nir
 
 
@@ -18,6 +19,7 @@ def export_nir_command(
 
     The refractory kernel and the 1 ms sampling are not exact in NIR: see docs/notes/nir.md.
     """
+    check_output_file(out, "OUT")
     path = export_nir(checkpoint, out)
     Console(stderr=True).print(
         f"wrote {path}: SNN-6 as NIR (Conv2d + CubaLIF x 5, AvgPool2d, Linear, CubaLI)"

@@ -20,6 +20,7 @@ the mean over each window say ``"output": "window_mean"``.
 
 from __future__ import annotations
 
+import inspect
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -28,6 +29,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from spikegyro.checks import check_input
 from spikegyro.errors import InputError
 
 CHECKPOINT_FORMAT = "spikegyro-checkpoint/1"
@@ -53,10 +55,23 @@ def model_names() -> list[str]:
     return sorted(_REGISTRY)
 
 
-def build_model(name: str, **kwargs: Any) -> nn.Module:
-    """Construct a registered model."""
+def check_model_kwargs(name: str, kwargs: dict[str, Any]) -> None:
+    """Raise :class:`InputError` unless model ``name`` exists and takes ``kwargs``."""
     if name not in _REGISTRY:
         raise InputError(f"unknown model '{name}'; choose one of {', '.join(model_names())}.")
+    signature = inspect.signature(_REGISTRY[name])
+    try:
+        signature.bind(**kwargs)
+    except TypeError as exc:
+        accepted = ", ".join(signature.parameters) or "none"
+        raise InputError(
+            f"--model-kwargs {kwargs}: {exc} for model '{name}'; it takes: {accepted}."
+        ) from None
+
+
+def build_model(name: str, **kwargs: Any) -> nn.Module:
+    """Construct a registered model."""
+    check_model_kwargs(name, kwargs)
     return _REGISTRY[name](**kwargs)
 
 
@@ -105,9 +120,7 @@ def training_total(payload: dict[str, Any]) -> dict[str, float]:
 
 def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     """Load a checkpoint dict (on the CPU), with clear errors for missing or foreign files."""
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: no such checkpoint file.")
+    path = check_input(path, "checkpoint")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as exc:  # torch raises many types for corrupt files

@@ -17,6 +17,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
+from spikegyro.checks import FIGURE_SUFFIXES, check_input, check_output_dir, check_output_file
 from spikegyro.errors import InputError
 from spikegyro.events.io import read_recording
 from spikegyro.events.plot import plot_events_and_omega
@@ -114,21 +115,27 @@ def simulate_dataset(
     slow_speed: tuple[float, float] = typer.Option(
         (5.0, 100.0), "--slow-speed", help="Their speed range MIN MAX, deg/s (log-uniform)."
     ),
-    contrast_mean: float = typer.Option(0.45, help="Mean contrast threshold (log units)."),
-    contrast_std: float = typer.Option(0.05, help="Per-sequence threshold spread."),
+    contrast_mean: float = typer.Option(0.45, help="Mean contrast threshold (log units, > 0)."),
+    contrast_std: float = typer.Option(0.05, min=0.0, help="Per-sequence threshold spread."),
     mismatch_std: float = typer.Option(0.03, min=0.0, help="Per-pixel threshold std."),
     noise_std: float = typer.Option(0.01, min=0.0, help="Per-crossing threshold std."),
     refractory_us: int = typer.Option(0, min=0, help="Refractory period, us (0: off)."),
     shot_noise_hz: float = typer.Option(0.0, min=0.0, help="Shot-noise events per pixel per s."),
     leak_hz: float = typer.Option(0.0, min=0.0, help="Leak (ON) events per pixel per s."),
-    width: int = typer.Option(None, help="Sensor width, px (default 240)."),
-    height: int = typer.Option(None, help="Sensor height, px (default 180)."),
+    width: int = typer.Option(None, min=1, help="Sensor width, px (default 240)."),
+    height: int = typer.Option(None, min=1, help="Sensor height, px (default 180)."),
     fx: float = typer.Option(None, help="Focal length x, px (default 200, scaled with width)."),
     fy: float = typer.Option(None, help="Focal length y, px."),
     cx: float = typer.Option(None, help="Principal point x, px."),
     cy: float = typer.Option(None, help="Principal point y, px."),
 ) -> None:
     """Simulate a dataset of rotating-event-camera sequences with exact angular velocity."""
+    check_output_dir(out)
+    if not contrast_mean > 0:
+        raise InputError(f"--contrast-mean {contrast_mean}: a contrast threshold must be > 0.")
+    for option, value in (("--fx", fx), ("--fy", fy)):
+        if value is not None and not value > 0:
+            raise InputError(f"{option} {value}: a focal length must be positive (pixels).")
     if compression not in ("none", "lzf", "gzip"):
         raise InputError(f"--compression {compression}: use none, lzf or gzip.")
     if panoramas is not None and not panoramas.is_dir():
@@ -223,7 +230,12 @@ def export_official_command(
     window_ms: int = typer.Option(100, "--window-ms", min=1, help="Sample length, ms."),
 ) -> None:
     """Cut every sequence into window-long sample files in exactly the official layout."""
+    check_input(src, "SRC", folder=True)
+    check_output_dir(out, "OUT")
     total = sum(1 for _ in src.glob("*/seq_*.h5"))
+    if not total:
+        raise InputError(f"{src}: no sequence files (DIR/{{train,val,test}}/seq_*.h5); give a "
+                         "folder made by 'spikegyro simulate'.")  # fmt: skip
     with _progress() as progress:
         task = progress.add_task("exporting", total=total, rate="")
         written = export_official(src, out, window_ms, lambda: progress.advance(task))
@@ -234,10 +246,11 @@ def show(
     path: Path = typer.Argument(..., help="Event file with ground truth (.h5, .npz, ...)."),
     out: Path = typer.Option(..., "--out", help="Figure path (.png, .pdf, .svg)."),
     start_ms: float = typer.Option(0.0, "--start-ms", help="Window start, ms from t = 0."),
-    window_ms: float = typer.Option(100.0, "--window-ms", help="Window length, ms."),
-    max_events: int = typer.Option(40_000, help="Draw at most this many events."),
+    window_ms: float = typer.Option(100.0, "--window-ms", min=0.001, help="Window length, ms."),
+    max_events: int = typer.Option(40_000, min=1, help="Draw at most this many events."),
 ) -> None:
     """Plot a window's events in space-time (ON red, OFF blue) above omega(t) on 3 axes."""
+    check_output_file(out, "--out", FIGURE_SUFFIXES)
     rec = read_recording(path)
     t0, t1 = round(start_ms * 1000), round((start_ms + window_ms) * 1000)
     events = rec.events.slice_time(t0, t1)

@@ -8,6 +8,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+from spikegyro.checks import sensor_option
 from spikegyro.events.calib import resolve_calibration
 from spikegyro.events.imu import IMU_TO_CAMERA_HELP, imu_rotation
 from spikegyro.events.io import EVENT_FILE_HELP
@@ -80,7 +81,7 @@ def predict(
     calibration, calib_file = resolve_calibration(events, calib, intrinsics)
     if calib_file is not None:
         console.print(f"using the calibration {calib_file}")
-    sensor = (width, height) if width and height else None
+    sensor = sensor_option(width, height)
     checkpoint = checkpoint or DEFAULT_CHECKPOINT
     if device == "stream":
         engine, payload = load_streaming_model(checkpoint, threads=threads)
@@ -128,6 +129,11 @@ def predict(
         f"-> {out}; {result.wall_s:.1f} s wall, {result.realtime_factor:.1f}× real time"
     )
     console.print(f"engine: {result.engine}")
+    if result.steps <= WARMUP_STEPS:
+        console.print(
+            f"warning: {result.steps} ms of output is within the network's {WARMUP_STEPS} ms "
+            "warm-up, where it reads about zero; predict over a longer span to get estimates."
+        )
     if result.stats:
         s = result.stats
         console.print(

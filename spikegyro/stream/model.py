@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from spikegyro.checks import check_input
 from spikegyro.errors import InputError
 from spikegyro.stream.stateful import SNNSpec, SRMLayerSpec, StreamingSNN
 
@@ -163,6 +164,7 @@ def load_streaming_spec(path: str | os.PathLike) -> tuple[SNNSpec, dict[str, Any
                 "pass --checkpoint PATH."
             )
         raise InputError(f"{path}: no such checkpoint file.")
+    check_input(path, "checkpoint")
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     cached = spec_cache_dir() / f"snn-spec-{digest[:24]}.npz"
     if cached.exists():

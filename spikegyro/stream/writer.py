@@ -20,6 +20,7 @@ from types import TracebackType
 import h5py
 import numpy as np
 
+from spikegyro.checks import check_output_file
 from spikegyro.errors import InputError
 from spikegyro.events.io import atomic_path
 
@@ -29,12 +30,7 @@ _H5_SUFFIXES = (".h5", ".hdf5")
 
 def check_prediction_path(path: str | os.PathLike) -> Path:
     """Raise :class:`InputError` unless ``path`` has a supported extension (.csv/.txt/.h5/.hdf5)."""
-    path = Path(path)
-    if path.suffix.lower() not in _CSV_SUFFIXES + _H5_SUFFIXES:
-        raise InputError(
-            f"{path}: unknown prediction format '{path.suffix}'; use .csv (or .txt) or .h5."
-        )
-    return path
+    return check_output_file(path, "--out", _CSV_SUFFIXES + _H5_SUFFIXES)
 
 
 class PredictionWriter:

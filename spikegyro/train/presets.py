@@ -9,9 +9,11 @@ training windows, small batches and a few hundred iterations under a time budget
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
+from spikegyro.checks import check_device
 from spikegyro.errors import InputError
 from spikegyro.models.snn6 import SNN6_LAYERS
 from spikegyro.train.data import DATA_PATHS
@@ -179,7 +181,26 @@ class TrainConfig:
             raise InputError(f"--centre-crop {self.centre_crop}: a probability, must lie in 0..1.")
         if not self.data and not self.online:
             raise InputError("train: give --data DIR (a simulated dataset) or --online.")
+        self._check_ranges()
+        check_device(self.device)
+        from spikegyro.models.registry import check_model_kwargs
+
+        check_model_kwargs(self.model, dict(self.model_kwargs or {}))
         object.__setattr__(self, "sensor", tuple(int(v) for v in self.sensor))
+
+    def _check_ranges(self) -> None:
+        if not (self.lr > 0 and math.isfinite(self.lr)):
+            raise InputError(f"--lr {self.lr}: the learning rate must be positive.")
+        for name in ("hflip", "vflip", "time_reverse", "lr_min_factor"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise InputError(
+                    f"--{name.replace('_', '-')} {getattr(self, name)}: must lie in 0..1."
+                )
+        for name in ("warmup_steps", "grad_clip", "val_windows", "num_workers", "threads"):
+            if getattr(self, name) < 0:
+                raise InputError(f"--{name.replace('_', '-')} {getattr(self, name)}: must be >= 0.")
+        if self.max_minutes < 0:
+            raise InputError(f"--max-minutes {self.max_minutes}: must be >= 0 (0: no limit).")
 
     def as_dict(self) -> dict[str, Any]:
         out = asdict(self)
