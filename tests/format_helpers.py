@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from spikegyro.events import EventArray
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "real" / "formats"
+"""Real camera files (``../shared/real/formats`` beside the repository); tests skip without."""
+needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="../shared/real/formats is absent")
 
 
 def assert_events(events: EventArray, x, y, t, p) -> None:
@@ -28,3 +33,17 @@ def cli_error(monkeypatch, capsys, *args: str) -> str:
     err = capsys.readouterr().err
     assert err.strip().count("\n") == 0
     return err
+
+
+def cli_run(monkeypatch, capsys, *args: str) -> tuple[str, str]:
+    """Run the command line in-process; assert it succeeds, and return (stdout, stderr)."""
+    from spikegyro import cli
+
+    monkeypatch.setattr(sys, "argv", ["spikegyro", *args])
+    monkeypatch.setenv("COLUMNS", "200")  # rich tables: no wrapped rows
+    try:
+        cli.main()
+    except SystemExit as exc:
+        assert not exc.code, capsys.readouterr().err
+    captured = capsys.readouterr()
+    return captured.out, captured.err

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from format_helpers import assert_events, cli_error
+from format_helpers import assert_events, cli_error, cli_run
 
-from spikegyro.errors import InputError
+from spikegyro.errors import InputError, InputWarning
 from spikegyro.events.imu import imu_rotation
 from spikegyro.events.io import detect_format, iter_event_chunks, read_gyro, read_recording
 
@@ -85,12 +85,29 @@ def test_jaer2_empty_and_truncated(tmp_path, monkeypatch, capsys):
     empty.write_bytes(JAER_HEADER)
     assert len(read_recording(empty).events) == 0
     assert list(iter_event_chunks(empty)) == []
-    bad = tmp_path / "bad.aedat"
-    bad.write_bytes(jaer_bytes([(jaer_dvs(1, 2, 1), 5)])[:-3])
-    with pytest.raises(InputError, match="truncated"):
-        read_recording(bad)
+    # Cut inside the last record: the records before it are read, with one warning line.
+    cut = tmp_path / "cut.aedat"
+    cut.write_bytes(jaer_bytes([(jaer_dvs(1, 2, 1), 5), (jaer_dvs(3, 4, 0), 9)])[:-3])
+    with pytest.warns(InputWarning, match="truncated"):
+        assert_events(read_recording(cut).events, [1], [177], [5], [1])
+    _, err = cli_run(monkeypatch, capsys, "info", str(cut))
+    assert err.startswith("warning: ") and err.count("\n") == 1 and "cut.aedat" in err
+    # Cut inside jAER's (long) header, in its preferences: nothing to read, an error.
+    prefs = "".join(f"#<entry key='k{i}' value='{i}'/>\r\n" for i in range(2000))
+    header = JAER_HEADER + f"#<preferences>\r\n{prefs}#</preferences>\r\n".encode()
+    whole = header + jaer_bytes([(jaer_dvs(1, 2, 1), 5)])[len(JAER_HEADER) :]
+    assert len(read_recording(_written(tmp_path / "whole.aedat", whole)).events) == 1
+    for cut_at in (len(header) // 2, len(header) - 5, len(JAER_HEADER) + 12):
+        bad = _written(tmp_path / "bad.aedat", whole[:cut_at])
+        with pytest.raises(InputError, match="ends inside its text header"):
+            read_recording(bad)
     err = cli_error(monkeypatch, capsys, "info", str(bad))
     assert "bad.aedat" in err and "truncated" in err
+
+
+def _written(path: Path, data: bytes) -> Path:
+    path.write_bytes(data)
+    return path
 
 
 # --- jAER / cAER AEDAT 3.1: little-endian packets -----------------------------------------------
@@ -135,9 +152,11 @@ def test_aedat31_polarity_and_imu(tmp_path):
     assert len(read_recording(path).events) == len(t) + 1
     with pytest.raises(InputError, match="out of time order by more than 100 ms"):
         streamed(path)
-    path.write_bytes(header + b"".join(packets)[:-3])
-    with pytest.raises(InputError, match="truncated"):
-        read_recording(path)
+    path.write_bytes(header + b"".join(packets)[:-3])  # the last (frame) packet is cut
+    with pytest.warns(InputWarning, match="truncated"):
+        rec = read_recording(path)
+    assert_events(rec.events, x, y, t, p)
+    np.testing.assert_array_equal(rec.gyro.t, [imu_t])
 
 
 # --- Prophesee DAT -------------------------------------------------------------------------------
@@ -166,8 +185,8 @@ def test_dat_round_trip_wrap_and_order(tmp_path):
     empty.write_bytes(dat_bytes([], [], [], []))
     assert len(read_recording(empty).events) == 0
     path.write_bytes(dat_bytes(x, y, t, p)[:-5])
-    with pytest.raises(InputError, match="truncated"):
-        read_recording(path)
+    with pytest.warns(InputWarning, match="truncated"):
+        assert_events(read_recording(path).events, x[:-1], y[:-1], t[:-1], p[:-1])
 
 
 def test_text_dat_is_still_text(tmp_path):
@@ -203,13 +222,15 @@ def evt2_bytes(x, y, t, p, extra: list[tuple[int, int]] = ()) -> bytes:
 def test_evt2_round_trip_past_34_bits(tmp_path):
     # The EVT 2.0 clock is 34 bits: start past 2^32 and run across its 2^34 µs wrap.
     x, y, t, p = random_events(600, 1280, 720, (1 << 34) - 300_000, 600_000, seed=3)
-    trigger = (0xA << 28) | 5  # an external trigger word: skipped
+    # External trigger words (level in bit 0, id in bits 8-12): counted apart, not events.
+    triggers = [(10, (0xA << 28) | (2 << 8) | 1), (20, (0xA << 28) | (2 << 8)), (30, 0xA << 28)]
     path = tmp_path / "cam.raw"
-    path.write_bytes(evt2_bytes(x, y, t, p, extra=[(10, trigger)]))
+    path.write_bytes(evt2_bytes(x, y, t, p, extra=triggers))
     assert detect_format(path) == "prophesee_raw"
     rec = read_recording(path)
     assert rec.events.sensor_size == (1280, 720)
     assert rec.attrs["prophesee_camera_integrator_name"] == "Prophesee"
+    assert (rec.attrs["triggers_rising"], rec.attrs["triggers_falling"]) == (1, 2)
     assert_events(rec.events, x, y, t, p)
     assert_events(type(rec.events).concatenate(streamed(path)), x, y, t, p)
 
@@ -270,7 +291,8 @@ def test_evt3_vectors_and_wraps_past_2_32(tmp_path, monkeypatch, capsys):
     empty.write_bytes(evt3_bytes([]))
     assert len(read_recording(empty).events) == 0
     path.write_bytes(evt3_bytes(groups)[:-1])
-    assert "truncated" in cli_error(monkeypatch, capsys, "info", str(path))
+    _, err = cli_run(monkeypatch, capsys, "info", str(path))
+    assert err.startswith("warning: ") and "truncated" in err and err.count("\n") == 1
 
 
 def test_unsupported_raw_encoding(tmp_path):
