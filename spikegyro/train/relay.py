@@ -1,14 +1,19 @@
-"""The relay log: one training run continued over many short GPU sessions.
+"""Training in segments: one run continued over many time-limited jobs, with one joined log.
 
-A relay folder (``relay/snn6/`` in the repository) holds the run's resume state (``last.pt``,
-``resume.pt``, ``config.json``, ``log.csv``) and ``relay_log.csv``: every segment's log rows
-joined, with a ``segment`` column, steps and elapsed seconds counted from the relay's start.
-``relay.json`` keeps the offsets between the run's own counters and the relay's (the run's
-``log.csv`` may count from a later start than the relay) and one entry per segment.
+A run trained in segments (Slurm jobs with a time limit, spot instances, shared machines) is a
+``spikegyro train`` run directory continued with ``--resume``; each segment ends at its
+``--max-minutes`` budget with a checkpoint. ``spikegyro relay-log RUN --relay DIR`` then folds
+the segment's new rows of ``RUN/log.csv`` into ``DIR/relay_log.csv`` (every segment's rows, with
+a ``segment`` column, steps and elapsed seconds counted from the first segment), records the
+segment in ``DIR/relay.json`` and redraws ``DIR/relay_curve.png``. ``DIR`` may be the run
+directory itself (the default). When it is another folder, the run's resume state (``last.pt``,
+``resume.pt``, ``config.json``, ``log.csv``) is copied there too, so that the folder can be
+copied onto the next machine and resumed.
 
-After a GPU segment, ``append_segment`` folds the new rows of the run's ``log.csv`` into the
-relay and ``plot_relay`` redraws the curve; ``spikegyro relay-log RUN --relay DIR`` does both
-and copies the resume state.
+``relay.json`` keeps the offsets between the run's own counters and the joined log's (a run
+started with ``--init`` from an earlier checkpoint counts from 0 again) and one entry per
+segment. ``scripts/train_segments.sh`` in the repository runs one segment and folds it in; the
+documentation's training page ("Training on time-limited machines") describes the workflow.
 """
 
 from __future__ import annotations
@@ -101,6 +106,20 @@ def append_segment(run_dir: str | Path, relay_dir: str | Path, note: str = "") -
     return entry
 
 
+def stored_minutes(run_dir: str | Path) -> float:
+    """Minutes of training stored in ``run_dir/resume.pt`` (0 when the run has not started).
+
+    ``--max-minutes`` counts them, so a segment of M more minutes passes their sum plus M.
+    """
+    path = Path(run_dir) / "resume.pt"
+    if not path.exists():
+        return 0.0
+    import torch
+
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    return float(state["elapsed_s"]) / 60.0
+
+
 def plot_relay(relay_csv: str | Path, out_png: str | Path) -> Path:
     """Training loss and validation median relative error against the relay's step."""
     import matplotlib
@@ -135,14 +154,21 @@ def plot_relay(relay_csv: str | Path, out_png: str | Path) -> Path:
 
 def relay_log_command(
     run_dir: Path = typer.Argument(..., help="The `spikegyro train` run of the new segment."),
-    relay: Path = typer.Option(Path("relay/snn6"), "--relay", help="Relay folder."),
+    relay: Path = typer.Option(
+        None,
+        "--relay",
+        help="Folder of the joined log (default: the run directory); the run's resume state is "
+        "copied there when it is another folder.",
+    ),
     note: str = typer.Option("", "--note", help="What this segment did (data, hardware)."),
 ) -> None:
-    """Fold a GPU segment into the relay: its log rows, its resume state and the curve."""
+    """Fold a training segment into the joined log: its rows, the resume state and the curve."""
+    relay = run_dir if relay is None else relay
     entry = append_segment(run_dir, relay, note)
-    for name in STATE_FILES:
-        if (run_dir / name).exists():
-            shutil.copy2(run_dir / name, relay / name)
+    if relay.resolve() != run_dir.resolve():
+        for name in STATE_FILES:
+            if (run_dir / name).exists():
+                shutil.copy2(run_dir / name, relay / name)
     plot_relay(relay / "relay_log.csv", relay / "relay_curve.png")
     typer.echo(
         f"segment {entry['segment']}: steps {entry['first_step']:,}-{entry['last_step']:,}, "

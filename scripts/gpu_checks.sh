@@ -1,16 +1,18 @@
 #!/bin/bash
-# The checks that only a GPU machine can run (issue 15, part 3; issue 18's Triton kernels), one
-# device call each, results under $OUT:
+# The checks that need an NVIDIA GPU, run from the repository root; results go under OUT_DIR:
 #
-#   bash relay/gpu_checks.sh tests   # the CUDA/Triton tests (skipped on machines without a GPU)
-#   bash relay/gpu_checks.sh bench   # `predict --device cuda` throughput against the CPU stream
+#   scripts/gpu_checks.sh OUT_DIR tests   # the CUDA and Triton tests (they skip without a GPU)
+#   scripts/gpu_checks.sh OUT_DIR bench   # `predict --device cuda` throughput against the CPU stream
 #
 # The bench simulates its recordings first, in parallel (about 3 minutes of simulation per minute
-# of events on one core), so the timings cover prediction only; together about 8 minutes on an H100
-# machine's 16 cores. BENCHMARKS.md ("`predict --device`") is where the numbers go.
+# of events on one core), so the timings cover prediction only; together about 8 minutes on a
+# 16-core H100 machine. Needs `pip install -e '.[gpu,test]'` and a CUDA build of PyTorch.
 set -eo pipefail
 export PYTHONUNBUFFERED=1 PYTHONPATH=.
-case "$1" in
+[ $# -eq 2 ] || { sed -n '4,5p' "$0" | sed 's/^# *//' >&2; exit 2; }
+OUT=$1
+mkdir -p "$OUT"
+case "$2" in
 tests)
     python3 -m pytest -q -p no:cacheprovider tests/test_snn_triton.py tests/test_stream_batched.py \
         tests/test_events_binning_torch.py 2>&1 | tee "$OUT/gpu_tests.txt"
@@ -23,7 +25,7 @@ bench)
         | tee "$OUT/batched_1x30s.txt"
     ;;
 *)
-    echo "usage: bash relay/gpu_checks.sh tests | bench" >&2
+    echo "usage: scripts/gpu_checks.sh OUT_DIR tests | bench" >&2
     exit 2
     ;;
 esac
