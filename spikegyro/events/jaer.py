@@ -17,6 +17,9 @@ bit 1 polarity, y = bits 2-16, x = bits 17-31, origin top left), int32 timestamp
 (type 3, 36 bytes): uint32 info (bit 0 valid), int32 timestamp, then float32 accelerometer x, y, z
 (g), gyro x, y, z (deg/s) and temperature. Full timestamps are overflow · 2^31 + timestamp.
 Other packet types (frames, triggers, ...) are skipped.
+
+A file cut inside its last record or packet is read up to it, with a warning; one cut inside its
+header (jAER writes headers of hundreds of kB) holds no data and is refused.
 """
 
 from __future__ import annotations

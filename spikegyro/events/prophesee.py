@@ -13,10 +13,20 @@ EVT3;height=720;width=1280``, ``% geometry 1280x720``, ..., ``% end``; DAT: ``% 
   base + i for each set bit i of their 12 / 8 valid bits, then advance the base by 12 / 8;
   EVT_TIME_LOW (6) and EVT_TIME_HIGH (8) set the lower and upper 12 bits of a 24-bit time
   (unwrapped: a time-high that goes back by over half its range means the counter wrapped;
-  smaller steps back are out-of-order data, put in order later). Others are skipped.
+  smaller steps back are out-of-order data, put in order later). Events before the first
+  TIME_HIGH and TIME_LOW have no known time and are dropped. Some writers (expelliarmus) emit
+  TIME_HIGH once and let TIME_LOW wrap: such a wrap advances the time by 4096 µs, with a
+  warning; conformant streams never do this. EXT_TRIGGER (0xA, level in bit 0) words are
+  counted (as in EVT 2.0), others are skipped.
 - DAT: after the header, one byte of event type and one of event size (8), then events of
   uint32 timestamp (µs, unwrapped) and uint32 data: x = bits 0-13, y = bits 14-27, polarity
   = bits 28-31.
+
+The sensor size is the one the header states (``% format``, ``% geometry``, ``% width`` and
+``% height``), else the one its plugin name, sensor name or system ID implies, as Metavision maps
+them (older Metavision headers name only these), else, with a warning, the smallest known
+Prophesee sensor that holds every event. A file cut inside its last word is read up to it, with
+a warning.
 """
 
 from __future__ import annotations
