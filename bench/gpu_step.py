@@ -243,10 +243,13 @@ def measure(name, build, context, base_model, x, y, args, device, reference_out)
             times.append(time.perf_counter() - start)
     peak = torch.cuda.max_memory_allocated(device) / 2**30 if device.type == "cuda" else math.nan
     ms = 1000 * statistics.median(times)
-    ref = out if reference_out is None else reference_out
-    scale = float(ref.abs().max()) or 1.0
+    # The reference itself has nothing to be compared with: None, not a vacuous 0.
+    diff = None
+    if reference_out is not None:
+        scale = float(reference_out.abs().max()) or 1.0
+        diff = float((out - reference_out).abs().max()) / scale
     return {"variant": name, "ms_per_step": ms, "samples_per_s": args.batch / ms * 1000,
-            "peak_gib": peak, "out_rel_diff": float((out - ref).abs().max()) / scale,
+            "peak_gib": peak, "out_rel_diff": diff, "out_abs_max": float(out.abs().max()),
             "_out": out}  # fmt: skip
 
 
@@ -265,7 +268,9 @@ def step_table(rows: list[dict]) -> list[str]:
         )
         lines.append(
             f"| {r['variant']} | {r['ms_per_step']:.1f} | {r['samples_per_s']:.1f} | "
-            f"{r['peak_gib']:.2f} | {vs_slayer:.2f}x | {vs_ref:.2f}x | {r['out_rel_diff']:.2e} |"
+            f"{r['peak_gib']:.2f} | {vs_slayer:.2f}x | {vs_ref:.2f}x | "
+            + ("-" if r["out_rel_diff"] is None else f"{r['out_rel_diff']:.2e}")
+            + " |"
         )
     return lines
 

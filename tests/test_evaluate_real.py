@@ -193,7 +193,7 @@ def _omega_cam(t_s: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def real_like(tmp_path_factory):
-    sim = pytest.importorskip("spikegyro.sim")
+    import spikegyro.sim as sim
     from spikegyro.sim.procedural import panorama_width, procedural_panorama
 
     root = tmp_path_factory.mktemp("real")

@@ -24,8 +24,11 @@ def test_shipped_snn6_beats_the_mean_predictor_on_unseen_scenes(tmp_path) -> Non
         pred = model(x).numpy().astype(np.float64).transpose(0, 2, 1)  # (n, T, 3)
     gt = np.stack([w.omega for w in windows])
     mean = np.zeros_like(gt)  # the training data's ω is zero-mean per axis
-    snn_rel, mean_rel = median_relative_error(pred, gt), median_relative_error(mean, gt)
-    assert mean_rel == 1.0
+    snn_rel = median_relative_error(pred, gt)
+    # Each window's prediction must follow its own motion: matched to another window's, the
+    # same outputs are far worse.
+    shuffled = pred[np.roll(np.arange(len(pred)), 1)]
+    assert snn_rel < 0.6 * median_relative_error(shuffled, gt)
     # Relay measurements: 0.22 on 320 test windows; a small split scatters around that.
     assert snn_rel < 0.45, snn_rel
     assert mean_euclidean_error(pred, gt) < 0.5 * mean_euclidean_error(mean, gt)
