@@ -275,7 +275,7 @@ def test_predict_windows_scores_steps_from_first_step() -> None:
 @pytest.fixture(scope="module")
 def textured_scene():
     """A procedural panorama (smooth texture plus sharp shapes) at the camera's resolution."""
-    sim = pytest.importorskip("spikegyro.sim")
+    import spikegyro.sim as sim
     from spikegyro.sim.procedural import panorama_width, procedural_panorama
 
     camera = sim.Camera()
