@@ -20,7 +20,7 @@ from format_helpers import REAL, assert_events, cli_error, cli_run, needs_real
 from spikegyro.errors import InputWarning
 from spikegyro.events import EventArray, GyroTrace, Recording, write_recording
 from spikegyro.events.event_packet import EVENT_PACKET
-from spikegyro.events.io import detect_format, iter_event_chunks, read_recording
+from spikegyro.events.io import detect_format, iter_event_chunks, read_gyro_if_any, read_recording
 
 
 def read_quietly(path: Path) -> Recording:
@@ -143,6 +143,7 @@ def test_event_packet_bags_real(name):
     assert rec.attrs["events_encoding"] == "evt3"
     assert ev.t[0] == 7_139_845  # its first event time (sensor clock, µs)
     assert 2_070_000 < ev.duration_us < 2_100_000
+    assert rec.gyro is None and read_gyro_if_any(REAL / name) is None  # a bag without Imu
 
 
 def copy_bag_to_mcap(src: Path, dst: Path) -> list:

@@ -186,6 +186,8 @@ def iter_blocks(
     try:
         ev_conns, imu_conns = _topics(reader)
         wanted = (ev_conns if events else []) + (imu_conns if imu else [])
+        if not wanted:  # rosbags reads every topic when given none
+            return
         ev_ids = {c.id for c in ev_conns}
         decode, packets = _event_decoder(path, reader, ev_conns[0]) if ev_conns else (None, None)
         imu_msgs: list[Any] = []
