@@ -1,4 +1,4 @@
-"""Which input statistic does SNN-6's roll estimate hang on? (DESIGN.md, "Why roll is hard").
+"""Which input statistic does SNN-6's roll estimate hang on? (docs/analysis.md).
 
 Runs a checkpoint on simulated test windows, each time changing one statistic in which the real
 sparse recordings differ from the simulator's, and prints per-axis mean absolute errors:
@@ -19,7 +19,8 @@ recorded and through the symmetries the network was trained with (left-right and
 time reversal), each prediction mapped back to the original frame. An equivariant network
 gives the same mean each time; the spread says how much of an estimate is bias, not evidence.
 
-    python bench/roll_probe.py --data DIR [--checkpoint PT] [--windows 100] [--real SPEC ...]
+    python scripts/analysis/roll_probe.py --data DIR [--checkpoint PT] [--windows 100] \
+        [--real SPEC ...]
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Does a readout that knows *where* features fire fix roll? (DESIGN.md, "Why roll is hard").
+"""Does a readout that knows *where* features fire fix roll? (docs/analysis.md).
 
 The shipped SNN-6 pools layer 5 globally (GASP) before its dense readout. This probe freezes the
 five spiking conv layers and refits the linear readout by ridge regression on the same
@@ -9,7 +9,7 @@ DAVIS240C windows with a reference angular velocity. The shipped readout (no ref
 reference row. If roll improves with the grid and not with the refit global readout, position
 is what the readout lacked; if neither helps, the conv features themselves lack roll evidence.
 
-    python bench/roll_readout.py --train-data DIR --test-data DIR \
+    python scripts/analysis/roll_readout.py --train-data DIR --test-data DIR \
         [--real EVENTS:CALIB:GYRO ...] [--grid 2 3] [--windows 120]
 """
 
