@@ -28,7 +28,7 @@ views of time-major, channels-last storage.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import nn
@@ -36,6 +36,7 @@ from torch import nn
 from spikegyro.errors import InputError
 from spikegyro.models.registry import register
 from spikegyro.snn.layers import GASP, RegionPool, SRMConv, SRMDense, SRMParams
+from spikegyro.snn.sparse import EventDrivenStack
 
 
 @dataclass(frozen=True)
@@ -125,6 +126,25 @@ class SNN6(nn.Module):
             conv.requires_grad_(i >= layers)
         return [p for p in self.parameters() if p.requires_grad]
 
+    def set_surrogate_cut(self, cut: float) -> None:
+        """Bound the surrogate gradient of every spiking layer: ρ = 0 where the spike pdf falls
+        below ``cut`` times its peak (0 = SLAYER's unbounded pdf; see
+        :func:`spikegyro.snn.functional.surrogate_half_width`). Changes gradients only."""
+        for conv in self.convs:
+            conv.params = replace(conv.params, rho_cut=float(cut))
+
+    def use_event_engine(self, threads: int | None) -> None:
+        """Run the spiking layers with the event-driven CPU engine (``threads`` batch elements
+        at once, :mod:`spikegyro.snn.sparse`), or with the batch torch path (``None``, the
+        default). Same weights and checkpoints; with a bounded surrogate
+        (:meth:`set_surrogate_cut`) the same gradients, much faster on a CPU."""
+        self._engine = None if threads is None else EventDrivenStack(self.convs, self.pool, threads)
+
+    @property
+    def event_engine(self) -> EventDrivenStack | None:
+        """The event-driven engine in use, or None (the batch path)."""
+        return getattr(self, "_engine", None)
+
     def reset_parameters(self, gain: float = INIT_GAIN) -> None:
         """Re-draw all weights uniformly in ±gain/√fan_in."""
         for layer in (*self.convs, self.fc):
@@ -160,6 +180,9 @@ class SNN6(nn.Module):
     def _run(self, x: torch.Tensor, keep_spikes: bool) -> tuple[torch.Tensor, list[torch.Tensor]]:
         self._check_input(x)
         spikes = x if x.is_floating_point() else x.to(self.fc.weight.dtype)
+        engine = self.event_engine
+        if engine is not None and not keep_spikes and x.device.type == "cpu":
+            return self.fc(engine.pooled(spikes)), []
         per_layer = []
         for conv in self.convs:
             spikes = conv(spikes)

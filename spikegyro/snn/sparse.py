@@ -1,12 +1,12 @@
 """Event-driven training of a stack of SRM conv layers with a pooled, filtered readout (CPU).
 
-:func:`sparse_loss_backward` computes the loss of a batch and the gradients of every weight that
-requires one, as ``loss.backward()`` through the batch path would with the same bounded
-surrogate (``SRMParams.rho_cut`` > 0), but visits only the input spikes (forward,
-:mod:`spikegyro.snn.sparse_forward`) and the (neuron, step) pairs within the surrogate's support
-(backward, :mod:`spikegyro.snn.sparse_backward`). The pooling, the dense readout and the loss
-are small and run through torch's autograd on the pooled layer-5 spike counts, so the readout
-is the model's own module, exactly.
+:class:`EventDrivenStack` runs the spiking layers of a network on the CPU and plugs into torch's
+autograd: ``loss.backward()`` gives every conv weight the gradient that the batch path gives with
+the same bounded surrogate (``SRMParams.rho_cut`` > 0), but the forward pass visits only the
+input spikes (:mod:`spikegyro.snn.sparse_forward`) and the backward pass only the (neuron, step)
+pairs within the surrogate's support (:mod:`spikegyro.snn.sparse_backward`). Its output is the
+pooled last-layer spikes; the dense readout and the loss downstream are the model's own torch
+code.
 
 Each batch element runs on one thread (Numba releases the GIL); ``threads`` elements run at once.
 Work and memory grow with the number of spikes and active pairs, not with the number of neurons
@@ -20,6 +20,7 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 import numba
 import numpy as np
@@ -27,7 +28,7 @@ import torch
 from torch import nn
 
 from spikegyro.snn.functional import surrogate_half_width
-from spikegyro.snn.layers import SRMConv, SRMDense
+from spikegyro.snn.layers import SRMConv
 from spikegyro.snn.sparse_backward import layer_backward
 from spikegyro.snn.sparse_forward import (
     alpha_constants,
@@ -158,146 +159,159 @@ def pooling_matrix(pool: nn.Module, height: int, width: int, dtype: torch.dtype)
 
 @dataclass
 class SparseTiming:
-    """Seconds spent in each part of the last :func:`sparse_loss_backward` call (wall time of
-    the parallel sections)."""
+    """Seconds spent in the parts of the last step of an :class:`EventDrivenStack` (wall time of
+    the parallel sections) and what they processed (summed over the batch)."""
 
     forward_s: float = 0.0
-    readout_s: float = 0.0
     backward_s: float = 0.0
     inputs: int = 0
     spikes: list[int] = field(default_factory=list)
     active: list[int] = field(default_factory=list)
 
 
-LAST_TIMING = SparseTiming()
-"""Filled by every call (for profiling; not thread-safe across concurrent calls)."""
+class EventDrivenStack:
+    """The event-driven engine for a stack of spiking conv layers and a linear spatial pooling.
 
-
-def sparse_loss_backward(
-    convs: Sequence[SRMConv],
-    pool: nn.Module,
-    readout: SRMDense,
-    x: torch.Tensor,
-    loss_fn: Callable[[torch.Tensor], torch.Tensor],
-    *,
-    threads: int = 1,
-) -> torch.Tensor:
-    """Loss of a batch, with ∂loss/∂weight accumulated into ``.grad`` of every weight that
-    requires a gradient, as the batch path's ``loss.backward()`` with the same bounded surrogate.
+    ``pooled(x)`` returns the pooled spikes of the last layer, (N, features, T), exactly as the
+    batch path computes them; when grad mode is on and some conv weight requires a gradient, the
+    result is attached to the autograd graph so that ``backward()`` through it accumulates each
+    conv weight's gradient (the event-driven backward pass). The readout and the loss downstream
+    stay ordinary torch code.
 
     Args:
         convs: spiking conv layers (no padding), each with ``params.rho_cut`` above
             exp(−1/tau_rho) (so that the support excludes rest, u = 0).
         pool: linear spatial pooling of the last layer's spikes (GASP or RegionPool).
-        readout: the non-spiking dense readout (PSP of the weighted pooled spikes).
-        x: input (N, C, H, W, T), time last, 1 ms steps (0/1 spikes or event counts).
-        loss_fn: maps the readout's output (N, outputs, T) to a scalar loss.
         threads: batch elements processed at once, one per thread.
-
-    Returns:
-        The (detached) loss.
     """
-    dtype = np.float64 if readout.weight.dtype == torch.float64 else np.float32
-    layers, size = [], tuple(x.shape[2:4])
-    for conv in convs:
-        layers.append(_Layer.of(conv, size, dtype))
-        size = layers[-1].out_shape
-    trainable = [conv.weight.requires_grad for conv in convs]
-    first = trainable.index(True) if any(trainable) else len(convs)
-    pooling = pooling_matrix(pool, *size, readout.weight.dtype).astype(dtype)
-    channels = layers[-1].weight.shape[3]
-    timing = SparseTiming()
-    with ThreadPoolExecutor(max(1, threads)) as workers:
+
+    def __init__(self, convs: Sequence[SRMConv], pool: nn.Module, threads: int = 1) -> None:
+        self.convs = tuple(convs)
+        self.pool = pool
+        self.threads = max(1, int(threads))
+        self.timing = SparseTiming()
+
+    def pooled(self, x: torch.Tensor) -> torch.Tensor:
+        """Pooled last-layer spikes (N, features, T) of input (N, C, H, W, T) (time last, 1 ms)."""
+        weights = [conv.weight for conv in self.convs]
+        if torch.is_grad_enabled() and any(w.requires_grad for w in weights):
+            return _EventDrivenFunction.apply(self, x, *weights)
+        return self._forward(x, record=False)[0]
+
+    def _forward(self, x: torch.Tensor, record: bool) -> tuple[torch.Tensor, _Plan]:
+        weight = self.convs[0].weight
+        dtype = np.float64 if weight.dtype == torch.float64 else np.float32
+        plan = _Plan.of(self.convs, self.pool, tuple(x.shape[2:4]), dtype, record)
         start = time.perf_counter()
         x_np = x.detach().cpu().numpy()
-        elements = list(
-            workers.map(
-                lambda b: _forward_element(x_np[b], layers, first, pooling, channels, dtype),
-                range(x.shape[0]),
-            )
+        plan.elements = self._map(lambda b: plan.forward_element(x_np[b]), x.shape[0])
+        self.timing = SparseTiming(forward_s=time.perf_counter() - start)
+        self.timing.inputs = sum(int(e.inputs[0][1].size) for e in plan.elements)
+        self.timing.spikes = [
+            sum(int(e.inputs[i][1].size) for e in plan.elements) for i in range(1, len(self.convs))
+        ]
+        self.timing.active = [
+            sum(int(e.active[i][1].size) for e in plan.elements) for i in range(len(self.convs))
+        ]
+        pooled = np.stack([e.pooled for e in plan.elements])
+        return torch.from_numpy(pooled).to(device=x.device, dtype=weight.dtype), plan
+
+    def _backward(self, plan: _Plan, grad_pooled: torch.Tensor) -> list[torch.Tensor | None]:
+        start = time.perf_counter()
+        grad_np = grad_pooled.detach().cpu().numpy().astype(plan.dtype)
+        per_element = self._map(
+            lambda b: plan.backward_element(plan.elements[b], grad_np[b]), len(plan.elements)
         )
-        timing.forward_s = time.perf_counter() - start
-        start = time.perf_counter()
-        pooled = torch.from_numpy(np.stack([e.pooled for e in elements])).to(readout.weight)
-        pooled.requires_grad_(first < len(convs))
-        loss = loss_fn(readout(pooled))
-        loss.backward()
-        timing.readout_s = time.perf_counter() - start
-        start = time.perf_counter()
-        if pooled.grad is not None:
-            grad_pooled = pooled.grad.cpu().numpy().astype(dtype)
-            grads = list(
-                workers.map(
-                    lambda b: _backward_element(
-                        elements[b], grad_pooled[b], layers, first, pooling, channels
-                    ),
-                    range(x.shape[0]),
-                )
-            )
-            _accumulate(convs, first, grads)
-        timing.backward_s = time.perf_counter() - start
-    timing.inputs = sum(int(e.inputs[0][1].size) for e in elements)
-    timing.spikes = [sum(int(e.inputs[i][1].size) for e in elements) for i in range(1, len(convs))]
-    timing.active = [sum(int(e.active[i][1].size) for e in elements) for i in range(len(convs))]
-    LAST_TIMING.__dict__.update(timing.__dict__)
-    return loss.detach()
+        self.timing.backward_s = time.perf_counter() - start
+        grads: list[torch.Tensor | None] = [None] * plan.first
+        for i, conv in enumerate(self.convs[plan.first :]):
+            total = per_element[0][i].copy()
+            for element in per_element[1:]:
+                total += element[i]
+            grads.append(torch.from_numpy(total).permute(3, 2, 0, 1).contiguous().to(conv.weight))
+        return grads
+
+    def _map(self, fn: Callable[[int], Any], count: int) -> list[Any]:
+        if self.threads == 1 or count == 1:
+            return [fn(b) for b in range(count)]
+        with ThreadPoolExecutor(min(self.threads, count)) as workers:
+            return list(workers.map(fn, range(count)))
 
 
-def _forward_element(
-    x: np.ndarray,
-    layers: list[_Layer],
-    first: int,
-    pooling: np.ndarray,
-    channels: int,
-    dtype: type,
-) -> _Element:
-    """Forward pass of one (C, H, W, T) input; keeps each layer's input lists and active pairs."""
-    offsets, index, values = dense_to_lists(np.ascontiguousarray(x))
-    spikes: Lists = (offsets, index, values.astype(dtype))
-    element = _Element()
-    for i, layer in enumerate(layers):
-        element.inputs.append(spikes)
-        spikes, active = layer.forward(spikes, record=i >= first)
-        element.active.append(active)
-    element.pooled = _pool_forward(spikes[0], spikes[1], pooling, channels)
-    return element
+class _EventDrivenFunction(torch.autograd.Function):
+    """Autograd node of :meth:`EventDrivenStack.pooled`: the conv weights' gradients come from
+    the event-driven backward pass."""
+
+    @staticmethod
+    def forward(ctx, engine: EventDrivenStack, x: torch.Tensor, *weights: torch.Tensor):
+        pooled, plan = engine._forward(x, record=True)
+        ctx.engine, ctx.plan = engine, plan
+        return pooled
+
+    @staticmethod
+    def backward(ctx, grad_pooled: torch.Tensor):
+        grads = ctx.engine._backward(ctx.plan, grad_pooled)
+        ctx.plan = None  # free the spike and active lists
+        return (None, None, *grads)
 
 
-def _backward_element(
-    element: _Element,
-    grad_pooled: np.ndarray,
-    layers: list[_Layer],
-    first: int,
-    pooling: np.ndarray,
-    channels: int,
-) -> list[np.ndarray]:
-    """Weight gradients (kh, kw, C_in, C_out) of layers ``first`` … last for one element."""
-    act_off, act_idx, _ = element.active[-1]
-    grad_s = _pool_backward(act_off, act_idx, grad_pooled, pooling, channels)
-    grads = []
-    for i in range(len(layers) - 1, first - 1, -1):
-        layer = layers[i]
-        act_off, act_idx, act_u = element.active[i]
-        below = element.active[i - 1][:2] if i > first else (act_off[:1], act_idx[:0])
-        grad_w, grad_s = layer_backward(
-            act_off, act_idx, act_u, grad_s, layer.surrogate, layer.eps, layer.out_shape,
-            element.inputs[i], layer.in_width, layer.weight, layer.stride, layer.rows,
-            layer.cols, below, i > first,
-        )  # fmt: skip
-        grads.append(grad_w)
-    return grads[::-1]
+@dataclass
+class _Plan:
+    """The layers of one step, as the kernels take them, and what each element's forward kept."""
 
+    layers: list[_Layer]
+    first: int  # the first layer whose weight learns (len(layers): none)
+    pooling: np.ndarray
+    dtype: type
+    elements: list[_Element] = field(default_factory=list)
 
-def _accumulate(convs: Sequence[SRMConv], first: int, grads: list[list[np.ndarray]]) -> None:
-    """Sum the elements' weight gradients into ``.grad`` (autograd's accumulation rule)."""
-    for i, conv in enumerate(convs[first:]):
-        total = grads[0][i].copy()
-        for element in grads[1:]:
-            total += element[i]
-        if not conv.weight.requires_grad:
-            continue
-        grad = torch.from_numpy(total).permute(3, 2, 0, 1).to(conv.weight)
-        if conv.weight.grad is None:
-            conv.weight.grad = grad.contiguous()
-        else:
-            conv.weight.grad += grad
+    @classmethod
+    def of(
+        cls,
+        convs: Sequence[SRMConv],
+        pool: nn.Module,
+        size: tuple[int, int],
+        dtype: type,
+        record: bool,
+    ) -> _Plan:
+        layers = []
+        for conv in convs:
+            layers.append(_Layer.of(conv, size, dtype))
+            size = layers[-1].out_shape
+        trainable = [record and conv.weight.requires_grad for conv in convs]
+        first = trainable.index(True) if any(trainable) else len(convs)
+        pooling = pooling_matrix(pool, *size, convs[0].weight.dtype).astype(dtype)
+        return cls(layers, first, pooling, dtype)
+
+    @property
+    def channels(self) -> int:
+        return self.layers[-1].weight.shape[3]
+
+    def forward_element(self, x: np.ndarray) -> _Element:
+        """Forward pass of one (C, H, W, T) input; keeps each layer's input and active pairs."""
+        offsets, index, values = dense_to_lists(np.ascontiguousarray(x))
+        spikes: Lists = (offsets, index, values.astype(self.dtype))
+        element = _Element()
+        for i, layer in enumerate(self.layers):
+            element.inputs.append(spikes)
+            spikes, active = layer.forward(spikes, record=i >= self.first)
+            element.active.append(active)
+        element.pooled = _pool_forward(spikes[0], spikes[1], self.pooling, self.channels)
+        return element
+
+    def backward_element(self, element: _Element, grad_pooled: np.ndarray) -> list[np.ndarray]:
+        """Weight gradients (kh, kw, C_in, C_out) of layers ``first`` … last for one element."""
+        act_off, act_idx, _ = element.active[-1]
+        grad_s = _pool_backward(act_off, act_idx, grad_pooled, self.pooling, self.channels)
+        grads = []
+        for i in range(len(self.layers) - 1, self.first - 1, -1):
+            layer = self.layers[i]
+            act_off, act_idx, act_u = element.active[i]
+            below = element.active[i - 1][:2] if i > self.first else (act_off[:1], act_idx[:0])
+            grad_w, grad_s = layer_backward(
+                act_off, act_idx, act_u, grad_s, layer.surrogate, layer.eps, layer.out_shape,
+                element.inputs[i], layer.in_width, layer.weight, layer.stride, layer.rows,
+                layer.cols, below, i > self.first,
+            )  # fmt: skip
+            grads.append(grad_w)
+        return grads[::-1]

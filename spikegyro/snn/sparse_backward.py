@@ -24,10 +24,10 @@ _FUTURE = np.iinfo(np.int64).max
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _dot(a: np.ndarray, b: np.ndarray, b_start: int) -> float:
+def _dot(a: np.ndarray, b: np.ndarray) -> float:
     total = a[0] * 0
     for o in range(a.size):
-        total += a[o] * b[b_start + o]
+        total += a[o] * b[o]
     return total
 
 
@@ -61,9 +61,9 @@ def _weight_grad_at(
                 if kx >= kernel_w or touched[pixel] > horizon:
                     continue  # ∂L/∂z is exactly 0 there
                 row = grad_w[ky, kx, c]
-                base = pixel * cout
+                grad_z = slot[pixel * cout : (pixel + 1) * cout]
                 for o in range(cout):
-                    row[o] += value * slot[base + o]
+                    row[o] += value * grad_z[o]
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -95,7 +95,7 @@ def _input_grad_at(
                 pixel = oy * out_width + ox
                 if kx >= kernel_w or touched[pixel] > horizon:
                     continue
-                total += _dot(weight[ky, kx, c], slot, pixel * cout)
+                total += _dot(weight[ky, kx, c], slot[pixel * cout : (pixel + 1) * cout])
         out[i] = total
 
 

@@ -95,8 +95,7 @@ def fanout_tables(
 
 @numba.njit(cache=True, nogil=True)
 def _scatter(
-    state_a: np.ndarray,
-    state_d: np.ndarray,
+    synaptic: np.ndarray,
     live: np.ndarray,
     live_until: int,
     index: np.ndarray,
@@ -109,32 +108,27 @@ def _scatter(
     out_width: int,
     rows: tuple[np.ndarray, np.ndarray],
     cols: tuple[np.ndarray, np.ndarray],
-    gain_a: float,
-    gain_d: float,
 ) -> None:
-    """Add ``gain·value·W[ky, kx, c, :]`` to A (and D) of every output pixel each input reaches."""
+    """Add ``value·W[ky, kx, c, :]`` to the synaptic input map of every output pixel each input
+    ``start:stop`` reaches (the convolution as a scatter from its non-zero inputs)."""
     kernel_w, cin, cout = weight.shape[1], weight.shape[2], weight.shape[3]
     for i in range(start, stop):
-        flat = index[i]
-        pixel, c = divmod(flat, cin)
-        iy, ix = divmod(pixel, in_width)
-        va = gain_a * values[i]
-        vd = gain_d * values[i]
+        pixel_in, c = divmod(index[i], cin)
+        iy, ix = divmod(pixel_in, in_width)
+        value = values[i]
         for oy in range(rows[0][iy], rows[1][iy] + 1):
             ky = iy - oy * stride
             for ox in range(cols[0][ix], cols[1][ix] + 1):
                 kx = ix - ox * stride
                 if kx >= kernel_w:
                     continue
-                out_pixel = oy * out_width + ox
-                base = out_pixel * cout
+                pixel = oy * out_width + ox
+                # Slice views let LLVM vectorise the loop (no wrap-around checks on indices).
+                target = synaptic[pixel * cout : (pixel + 1) * cout]
                 w = weight[ky, kx, c]
                 for o in range(cout):
-                    state_a[base + o] += va * w[o]
-                if gain_d != 0.0:
-                    for o in range(cout):
-                        state_d[base + o] += vd * w[o]
-                live[out_pixel] = max(live[out_pixel], live_until)
+                    target[o] += value * w[o]
+                live[pixel] = max(live[pixel], live_until)
 
 
 def alpha_constants(kernel: np.ndarray, dtype: type) -> tuple[np.ndarray, int]:
@@ -198,12 +192,14 @@ def layer_forward(
     out_height, out_width = out_shape
     pixels = out_height * out_width
     dtype = weight.dtype
-    c_eps, p_eps, one, tail_a, tail_d = alpha[0], alpha[1], alpha[2], alpha[3], alpha[4]
+    c_eps, p_eps, tail_a, tail_d = alpha[0], alpha[1], alpha[3], alpha[4]
     state_a = np.zeros(pixels * cout, dtype)
     state_d = np.zeros(pixels * cout, dtype)
+    # z[t] of the last L + 1 steps: z[t − L] leaves the PSP through the tail weights.
+    synaptic = np.zeros((taps + 1, pixels * cout), dtype)
     ring_len = ref_taps.size
     ring = np.zeros((ring_len, pixels * cout), dtype)
-    nu = ref_taps
+    potential = np.empty(cout, dtype)
     live = np.full(pixels, -1, np.int64)
     spike_offsets = np.zeros(steps + 1, np.int64)
     spikes = np.empty(_MIN_CAPACITY, np.int32)
@@ -213,42 +209,44 @@ def layer_forward(
     n_spikes = 0
     n_act = 0
     for t in range(steps):
-        _scatter(state_a, state_d, live, t + taps, in_index, in_values, in_offsets[t],
-                 in_offsets[t + 1], weight, stride, in_width, out_width, rows, cols, one, one - one)  # fmt: skip
-        if t >= taps:
-            _scatter(state_a, state_d, live, t, in_index, in_values, in_offsets[t - taps],
-                     in_offsets[t - taps + 1], weight, stride, in_width, out_width, rows, cols,
-                     tail_a, tail_d)  # fmt: skip
-        slot = ring[t % ring_len]
+        z_now = synaptic[t % (taps + 1)]
+        z_old = synaptic[(t + 1) % (taps + 1)]  # z[t − L]; becomes z[t + 1]'s slot
+        _scatter(z_now, live, t + taps, in_index, in_values, in_offsets[t], in_offsets[t + 1],
+                 weight, stride, in_width, out_width, rows, cols)  # fmt: skip
+        refractory = ring[t % ring_len]
         for pixel in range(pixels):
             if live[pixel] < t:
                 continue
-            expired = live[pixel] == t
-            base = pixel * cout
-            fired = False
+            lo, hi = pixel * cout, (pixel + 1) * cout
+            a, d, z, old, ref = state_a[lo:hi], state_d[lo:hi], z_now[lo:hi], z_old[lo:hi], refractory[lo:hi]
+            for o in range(cout):  # a = p·A[t−1], d = p·(D[t−1] + A[t−1]) from the last step
+                dd = d[o] + tail_d * old[o]
+                aa = a[o] + z[o] + tail_a * old[o]
+                potential[o] = c_eps * dd + ref[o]
+                d[o] = p_eps * (dd + aa)
+                a[o] = p_eps * aa
+                old[o] = 0.0
+                ref[o] = 0.0
+            if live[pixel] == t:  # every input has left the kernel: clear the rounding residue
+                a[:] = 0.0
+                d[:] = 0.0
             spikes = _grow(spikes, n_spikes + cout)
             if record:
                 act_index = _grow(act_index, n_act + cout)
                 act_u = _grow(act_u, n_act + cout)
-            for n in range(base, base + cout):
-                u = c_eps * state_d[n] + slot[n]
-                slot[n] = 0.0
+            fired = False
+            for o in range(cout):
+                u = potential[o]
                 if record and abs(u - theta) <= half_width:
-                    act_index[n_act] = n
+                    act_index[n_act] = lo + o
                     act_u[n_act] = u
                     n_act += 1
                 if u >= theta:
-                    spikes[n_spikes] = n
+                    spikes[n_spikes] = lo + o
                     n_spikes += 1
                     fired = True
                     for k in range(1, ring_len):
-                        ring[(t + k) % ring_len, n] += nu[k]
-                if expired:
-                    state_a[n] = 0.0
-                    state_d[n] = 0.0
-                else:
-                    state_d[n] = p_eps * (state_d[n] + state_a[n])
-                    state_a[n] = p_eps * state_a[n]
+                        ring[(t + k) % ring_len, lo + o] += ref_taps[k]
             if fired:
                 live[pixel] = max(live[pixel], t + ring_len - 1)
         spike_offsets[t + 1] = n_spikes
