@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import h5py
@@ -97,16 +98,22 @@ def build(root: Path) -> dict[str, Path]:
     return p
 
 
+def cpu_seconds(pid: int) -> float:
+    """User plus system CPU time of a running process (Linux ``/proc``)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def interrupt_after(
-    command: list[str], ready: callable, *, cwd: Path, timeout_s: float = 300
+    command: list[str], ready: Callable[[int], bool], *, cwd: Path, timeout_s: float = 300
 ) -> subprocess.CompletedProcess[str]:
-    """Run ``command``; send SIGINT once ``ready()`` holds; wait for it to end."""
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    """Run ``command``; send SIGINT once ``ready(pid)`` holds; wait for it to end."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
     proc = subprocess.Popen(
         command, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     deadline = time.monotonic() + timeout_s
-    while not ready() and proc.poll() is None and time.monotonic() < deadline:
+    while proc.poll() is None and not ready(proc.pid) and time.monotonic() < deadline:
         time.sleep(0.05)
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
