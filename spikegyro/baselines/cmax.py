@@ -1,27 +1,29 @@
 """Contrast maximization (Gallego and Scaramuzza, RA-L 2017): angular velocity without learning.
 
 For a window of events and a candidate angular velocity ω (rad/s, camera frame: x right, y down,
-z forward), every event's ray is rotated to a reference time ``t_ref`` in the middle of the
-window, the rays are projected into an image of warped events (IWE) by bilinear voting, the IWE
-is smoothed with a Gaussian, and the ω that maximizes its variance is the estimate: only the
-true rotation brings the events of each edge back onto that edge (``cmax_iwe`` has the warp, the
-objective and its exact gradient).
+z forward), every event's ray is rotated to a reference time ``t_ref``, the rays are projected
+into an image of warped events (IWE) by bilinear voting, the IWE is smoothed with a Gaussian,
+and the ω that maximizes its variance is the estimate: only the true rotation brings the events
+of each edge back onto that edge (``cmax_iwe`` has the warp, the objective and its exact
+gradient).
 
 Rays. Events are undistorted to rays per sensor pixel with the sensor's calibration
 (``spikegyro.events.calib.Calibration``; a plain pinhole when it has no distortion), in floating
 point: no rounding onto a pixel grid and no event lost where the undistorted image overhangs the
-sensor. Hot pixels are dropped (``cmax_windows.hot_pixel_mask``): they pull the estimate to 0.
+sensor. Hot pixels are dropped (``cmax_windows``): they pull the estimate to 0.
 
-Search. The variable is ω scaled to pixels of displacement at the window's ends, so one unit is
-about one pixel of blur on each axis whatever the window's length. A grid over that space
-(bounded by ``grid_max_dps`` and ``grid_max_px``), scored on a subsample at the coarsest pyramid
-level with a blur as wide as the grid spacing, picks the best starts; each start (plus zero and
-the warm start) is refined with L-BFGS coarse to fine on a subsample, the best at full resolution
-wins, and it is refined on all events (up to ``max_events``). In a stream, each window starts
-from the previous estimate and the full search is repeated every ``grid_every`` windows.
+Search (:func:`search`). The variable is ω scaled to pixels of displacement at the window's
+far end, so one unit is about one pixel of blur on each axis whatever the window's length. A
+grid over that space (bounded by ``grid_max_dps`` and ``grid_max_px``), scored on a subsample at
+the coarsest pyramid level with a blur as wide as the grid spacing, picks the best starts; each
+start (plus zero and the warm start) is refined with BFGS coarse to fine on a subsample, the
+best at full resolution wins, and it is refined on all events (up to ``max_events``).
 
-Windows (``cmax_windows``): by event count by default (``window_events`` events every
-``stride_events``), each estimate standing for the middle of its window; or by time.
+Streams (:mod:`spikegyro.baselines.cmax_stream`): causal windows that adapt to the event rate
+and the motion (:mod:`spikegyro.baselines.cmax_windows`), one estimate per output time, each
+warm-started from the previous one and refined by a few BFGS steps at full resolution, with the
+global search at the start and every ``search_every_s``. :func:`predict_stream` and
+:func:`predict_windows` run it over events in memory.
 """
 
 from __future__ import annotations
@@ -29,13 +31,13 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
 
 from spikegyro.baselines import cmax_iwe
-from spikegyro.baselines.cmax_windows import count_windows, hot_pixel_mask, time_windows
+from spikegyro.baselines.cmax_windows import WindowPolicy, hot_pixel_mask
 from spikegyro.events.calib import DEFAULT_FOCAL_PX, DEFAULT_WIDTH, PinholeCamera
 from spikegyro.events.core import EventArray
 
@@ -58,36 +60,42 @@ class Intrinsics(Protocol):
 class CMaxConfig:
     """Settings of the contrast-maximization estimator.
 
-    Attributes:
-        window_events: events per window (count windows; a shorter stream is one window).
-        stride_events: events between consecutive count windows.
-        window_ms: if > 0, windows of this duration (ms) instead of counts.
-        stride_ms: time windows: one estimate every ``stride_ms`` ms.
-        causal: time windows end at their estimate's time (only past events) instead of being
-            centred on it.
+    Streams (:class:`~spikegyro.baselines.cmax_stream.CMaxEstimator`):
+        rate_hz: estimates per second of event time; 0: one per event batch.
+        window: how long each causal window is (adaptive by default; see ``WindowPolicy``).
+        track_events: events (evenly thinned) a tracking estimate uses at most (speed).
+        track_iterations: BFGS iterations of a tracking estimate (warm-started, curvature
+            included).
+        track_xtol_px: a tracking estimate stops once a step moves edges less than this, px.
+        search_every_s: the global search runs at the first estimate and then every this many
+            seconds of event time (0: only at the first), the tracked estimate competing.
+        min_motion_px: estimates moving edges by less than this over their window are flagged
+            ill-posed (too little motion to tell from none).
+
+    One window (:func:`estimate_window`, :func:`search`):
         max_events: windows with more events are randomly subsampled to this many (speed).
-        min_events: windows with fewer events keep the previous estimate (zero at the start).
+        min_events: windows with fewer events give no estimate (the previous one, or zero).
         hot_pixel_factor: drop pixels firing more than this times the 95th percentile of
-            the pixel counts (see ``cmax_windows.hot_pixel_mask``); 0 keeps all.
+            the pixel counts (see ``cmax_windows``); 0 keeps all.
         levels: image downscale factors of the pyramid, coarse to fine (the last is 1).
         sigma_px: Gaussian smoothing of the IWE, pixels of each pyramid level.
-        iterations: L-BFGS iterations per pyramid level.
+        iterations: BFGS iterations per pyramid level of the search.
         grid_points: grid points per axis of the global search (odd, so 0 is on the grid).
         grid_max_dps: the grid spans at most ``±grid_max_dps`` deg/s on each axis ...
         grid_max_px: ... and at most ``±grid_max_px`` pixels of displacement at the window's ends.
         grid_events: events (random subsample) scored by the grid.
         starts: how many of the best grid points are refined (besides zero and the warm start).
-        grid_every: in a stream, search globally every ``grid_every`` windows (always for the
-            first); between, start from the previous estimate only. 0: only the first.
         search_events: events (random subsample) used to refine and compare the starts.
         seed: seed of the event subsampling.
     """
 
-    window_events: int = 30_000
-    stride_events: int = 10_000
-    window_ms: float = 0.0
-    stride_ms: float = 5.0
-    causal: bool = False
+    rate_hz: float = 100.0
+    window: WindowPolicy = field(default_factory=WindowPolicy)
+    track_events: int = 10_000
+    track_iterations: int = 2
+    track_xtol_px: float = 0.05
+    search_every_s: float = 1.0
+    min_motion_px: float = 1.0
     max_events: int = 30_000
     min_events: int = 100
     hot_pixel_factor: float = 5.0
@@ -99,13 +107,12 @@ class CMaxConfig:
     grid_max_px: float = 40.0
     grid_events: int = 2000
     starts: int = 3
-    grid_every: int = 10
     search_events: int = 4000
     seed: int = 0
 
 
 @dataclass(frozen=True)
-class _Problem:
+class Problem:
     """One window ready for warping: rays, times to t_ref, and the pinhole to project with."""
 
     bx: np.ndarray  # (N,) ray x/z
@@ -119,7 +126,7 @@ class _Problem:
     def __len__(self) -> int:
         return len(self.dt)
 
-    def subset(self, n: int, rng: np.random.Generator) -> _Problem:
+    def subset(self, n: int, rng: np.random.Generator) -> Problem:
         """At most ``n`` events drawn at random (the same problem when it has no more)."""
         if len(self) <= n:
             return self
@@ -173,7 +180,7 @@ def camera_from_attrs(attrs: dict[str, Any], width: int, height: int) -> Pinhole
 
 
 @functools.lru_cache(maxsize=8)
-def _ray_table(camera: Any, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+def ray_table(camera: Any, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     """(height, width) ray x/z and y/z of every sensor pixel: undistorted, NaN where undefined.
 
     ``camera``: a ``Calibration`` or a tuple ``(fx, fy, cx, cy)``.
@@ -193,7 +200,7 @@ def make_problem(
     config: CMaxConfig,
     rng: np.random.Generator,
     t_ref_us: float | None = None,
-) -> _Problem:
+) -> Problem:
     """Rays of ``events`` (hot pixels dropped, subsampled to ``max_events``) around ``t_ref_us``.
 
     ``t_ref_us`` defaults to the middle of the events' span.
@@ -201,7 +208,7 @@ def make_problem(
     keep = hot_pixel_mask(events.x, events.y, events.width, events.height, config.hot_pixel_factor)
     # Keyed by value: a calibration undistorts, any other intrinsics are a plain pinhole.
     key = camera if hasattr(camera, "pixel_rays") else (camera.fx, camera.fy, camera.cx, camera.cy)
-    xs, ys = _ray_table(key, events.width, events.height)
+    xs, ys = ray_table(key, events.width, events.height)
     ix, iy = events.x.astype(np.intp), events.y.astype(np.intp)
     bx, by = xs[iy, ix], ys[iy, ix]
     keep &= np.isfinite(bx) & np.isfinite(by)
@@ -211,7 +218,7 @@ def make_problem(
     t = events.t.astype(np.float64)
     t_ref = 0.5 * (t[0] + t[-1]) if t_ref_us is None else float(t_ref_us)
     intrinsics = np.array([camera.fx, camera.fy, camera.cx, camera.cy], dtype=np.float64)
-    return _Problem(
+    return Problem(
         bx[index],
         by[index],
         (t_ref - t[index]) * 1e-6,
@@ -222,7 +229,7 @@ def make_problem(
     )
 
 
-def _grid_starts(problem: _Problem, config: CMaxConfig) -> list[np.ndarray]:
+def _grid_starts(problem: Problem, config: CMaxConfig) -> list[np.ndarray]:
     """The ``config.starts`` best grid points, scored at the coarsest level blurred to spacing."""
     if config.starts <= 0 or config.grid_points < 2:
         return []
@@ -249,70 +256,152 @@ def _grid_starts(problem: _Problem, config: CMaxConfig) -> list[np.ndarray]:
     return list(grid[np.argsort(-scores)[: config.starts]])
 
 
+@dataclass(frozen=True)
+class Maximum:
+    """What :func:`maximize_bfgs` found: the point, its value, the final inverse Hessian
+    estimate (of the negated objective) and how many times the objective was evaluated."""
+
+    x: np.ndarray
+    value: float
+    inv_hessian: np.ndarray
+    evaluations: int
+
+
 def maximize_bfgs(
     objective: Callable[[np.ndarray], tuple[float, np.ndarray]],
     x0: np.ndarray,
     iterations: int,
     first_step: float = 1.0,
     xtol: float = 1e-3,
-) -> np.ndarray:
+    inv_hessian: np.ndarray | None = None,
+    start: tuple[float, np.ndarray] | None = None,
+) -> Maximum:
     """Maximize a smooth function of a few variables by BFGS with a backtracking line search.
 
-    ``objective(x)`` returns the value and its gradient. The first step moves ``first_step``
-    along the gradient; the inverse Hessian then takes over. Stops after ``iterations`` steps,
-    when a step is shorter than ``xtol`` on every variable, or when no step gains.
+    ``objective(x)`` returns the value and its gradient; ``start`` is that pair at ``x0`` when
+    already known. Without ``inv_hessian`` (a previous run's, to warm-start the curvature too)
+    the first step moves ``first_step`` along the gradient; the inverse Hessian then takes over.
+    Stops after ``iterations`` steps, when a step is shorter than ``xtol`` on every variable, or
+    when no step gains.
 
     (SciPy's L-BFGS-B driver spends milliseconds per iteration in multithreaded BLAS calls
     under CPU contention, more than the objective itself costs here.)
     """
     x = np.asarray(x0, dtype=np.float64)
-    f, g = objective(x)
-    inv_hessian = np.eye(len(x)) * first_step / max(float(np.linalg.norm(g)), 1e-30)
+    f, g = objective(x) if start is None else start
+    calls = int(start is None)
+    eye = np.eye(len(x))
+
+    def gradient_step() -> np.ndarray:
+        return eye * first_step / max(float(np.linalg.norm(g)), 1e-30)
+
+    h = gradient_step() if inv_hessian is None else np.array(inv_hessian, dtype=np.float64)
     for _ in range(iterations):
-        direction = inv_hessian @ g
+        direction = h @ g
         slope = float(g @ direction)
         if not slope > 0:
-            inv_hessian = np.eye(len(x)) * first_step / max(float(np.linalg.norm(g)), 1e-30)
-            direction, slope = inv_hessian @ g, first_step * float(np.linalg.norm(g))
+            h = gradient_step()
+            direction, slope = h @ g, first_step * float(np.linalg.norm(g))
         step = 1.0
         while True:
             x_new = x + step * direction
             f_new, g_new = objective(x_new)
+            calls += 1
             if f_new >= f + 1e-4 * step * slope:
                 break
             step *= 0.3
             if step * float(np.abs(direction).max()) < xtol:
-                return x
+                return Maximum(x, f, h, calls)
         s, y = x_new - x, g - g_new  # y: change of the gradient of -objective
         x, f, g = x_new, f_new, g_new
         sy = float(s @ y)
         if sy > 1e-12:
             rho = 1.0 / sy
-            left = np.eye(len(x)) - rho * np.outer(s, y)
-            inv_hessian = left @ inv_hessian @ left.T + rho * np.outer(s, s)
+            left = eye - rho * np.outer(s, y)
+            h = left @ h @ left.T + rho * np.outer(s, s)
         if float(np.abs(s).max()) < xtol:
             break
-    return x
+    return Maximum(x, f, h, calls)
 
 
-def _refine(problem: _Problem, omega: np.ndarray, scale: int, config: CMaxConfig) -> np.ndarray:
-    """Maximize the contrast at one pyramid level from ``omega``; returns ω rad/s.
+@dataclass(frozen=True)
+class Refined:
+    """ω (3,) rad/s from :func:`refine`, its contrast, and the curvature to warm-start with
+    (inverse Hessian in normalized units: pixels at the window's far end, contrast over the
+    starting contrast)."""
 
-    The variable is ω in pixels of displacement at the window's ends (at this level) and the
-    objective is normalized by its starting value, so steps and tolerances mean the same in
-    any window: the first step is half a pixel, and a step under 0.01 px ends the search.
+    omega: np.ndarray
+    contrast: float
+    inv_hessian: np.ndarray | None
+
+
+def refine(
+    problem: Problem,
+    omega: np.ndarray,
+    scale: int,
+    config: CMaxConfig,
+    iterations: int | None = None,
+    inv_hessian: np.ndarray | None = None,
+    xtol_px: float = 0.01,
+) -> Refined:
+    """Maximize the contrast at one pyramid level from ``omega`` (rad/s).
+
+    The variable is ω in pixels of displacement at the window's far end (at this level) and the
+    objective is normalized by its starting value, so steps, tolerances and curvature mean the
+    same in any window: the first step is half a pixel (without ``inv_hessian``), and a step
+    under ``xtol_px`` ends the search.
     """
     px = problem.px_per_rad_s / scale
-    norm = problem.contrast(omega, scale, config.sigma_px)[0]
+    omega = np.asarray(omega, dtype=np.float64)
+    norm, grad = problem.contrast(omega, scale, config.sigma_px, gradient=True)
     if not norm > 0:
-        return omega
+        return Refined(omega, norm, None)
 
     def objective(phi: np.ndarray) -> tuple[float, np.ndarray]:
         value, grad = problem.contrast(phi / px, scale, config.sigma_px, gradient=True)
         return value / norm, grad / (norm * px)
 
-    phi = maximize_bfgs(objective, np.asarray(omega) * px, config.iterations, 0.5, 0.01)
-    return phi / px
+    steps = config.iterations if iterations is None else iterations
+    found = maximize_bfgs(
+        objective, omega * px, steps, 0.5, xtol_px, inv_hessian, (1.0, grad / (norm * px))
+    )
+    return Refined(found.x / px, found.value * norm, found.inv_hessian)
+
+
+def search(
+    problem: Problem,
+    config: CMaxConfig,
+    init: np.ndarray | None = None,
+    grid: bool = True,
+    rng: np.random.Generator | None = None,
+) -> Refined:
+    """The ω (3,) rad/s that maximizes the contrast of ``problem``'s events (see Refined).
+
+    With ``grid`` (or without ``init``), the best grid points, zero and ``init`` are refined
+    coarse to fine on a subsample and the best is refined on all events, so a bad warm start
+    cannot trap the estimate; otherwise ``init`` is refined at the two finest levels.
+    """
+    rng = rng or np.random.default_rng(config.seed)
+    sub = problem.subset(config.search_events, rng)
+    finest = config.levels[-1]
+    if grid or init is None:
+        starts = _grid_starts(sub.subset(config.grid_events, rng), config) if grid else []
+        starts += [np.zeros(3)] + ([np.asarray(init, dtype=np.float64)] if init is not None else [])
+        levels = config.levels
+    else:
+        starts, levels = [np.asarray(init, dtype=np.float64)], config.levels[-2:]
+    best, best_score = starts[0], -math.inf
+    for omega in starts:
+        for scale in levels[:-1]:
+            omega = refine(sub, omega, scale, config).omega
+        if len(starts) == 1:
+            best = omega
+            break
+        # Compared where blur no longer hides the difference between the candidates.
+        score = sub.contrast(omega, finest, config.sigma_px)[0]
+        if score > best_score:
+            best, best_score = omega, score
+    return refine(problem, best, finest, config)
 
 
 def estimate_window(
@@ -330,9 +419,7 @@ def estimate_window(
         camera: the sensor's intrinsics in pixels, or its ``Calibration`` (then the events are
             undistorted); default :func:`default_camera` of the sensor.
         config: estimator settings; default :class:`CMaxConfig`.
-        init: warm start (3,) rad/s, e.g. the previous window's estimate. With ``grid`` it
-            competes with the best grid points and zero, so a bad warm start cannot trap the
-            estimate; without, it is refined at the two finest levels only (fast tracking).
+        init: warm start (3,) rad/s, e.g. the previous window's estimate (see :func:`search`).
         grid: run the global search (without it the search starts from ``init`` or 0).
         t_ref_us: the time the estimate stands for, µs (default: the middle of the events).
 
@@ -349,61 +436,7 @@ def estimate_window(
     problem = make_problem(events, camera, config, rng, t_ref_us)
     if len(problem) < max(config.min_events, 2):
         return fallback.copy()
-    search = problem.subset(config.search_events, rng)
-    finest = config.levels[-1]
-    if grid or init is None:
-        starts = _grid_starts(search.subset(config.grid_events, rng), config) if grid else []
-        starts += [np.zeros(3)] + ([fallback] if init is not None else [])
-        levels = config.levels
-    else:
-        starts, levels = [fallback], config.levels[-2:]
-    best, best_score = starts[0], -math.inf
-    for omega in starts:
-        for scale in levels[:-1]:
-            omega = _refine(search, omega, scale, config)
-        if len(starts) == 1:
-            best = omega
-            break
-        # Compared where blur no longer hides the difference between the candidates.
-        score = search.contrast(omega, finest, config.sigma_px)[0]
-        if score > best_score:
-            best, best_score = omega, score
-    return _refine(problem, best, finest, config)
-
-
-def plan_windows(
-    events: EventArray,
-    config: CMaxConfig,
-    t_first_us: int | None = None,
-    t_end_us: int | None = None,
-) -> np.ndarray:
-    """The windows a stream is estimated over: (K, 3) int64 rows ``(i0, i1, t_ref_us)``.
-
-    Count windows (``config.window_ms == 0``) cover all events; only those whose reference time
-    lies in ``[t_first_us, t_end_us]`` are kept. Time windows are placed every ``stride_ms``
-    from ``t_first_us`` to ``t_end_us``; by default from the first event plus a stride (causal)
-    or half a window (centred) to the last event (less half a window when centred; a stream
-    shorter than that gets one window at its middle).
-    """
-    t = events.t
-    if len(t) == 0:
-        return np.zeros((0, 3), dtype=np.int64)
-    lo = int(t[0]) if t_first_us is None else int(t_first_us)
-    hi = int(t[-1]) + 1 if t_end_us is None else int(t_end_us)
-    if config.window_ms <= 0:
-        rows = count_windows(t, config.window_events, config.stride_events)
-        return rows[(rows[:, 2] >= lo) & (rows[:, 2] <= hi)]
-    stride_us = max(round(config.stride_ms * 1000), 1)
-    # By default centred windows stay inside the stream; one shorter than a window gets one.
-    half = 0 if config.causal else round(config.window_ms * 500)
-    if t_first_us is None:
-        lo += stride_us if config.causal else half
-    if t_end_us is None:
-        hi -= half
-    times = np.arange(lo, hi + 1, stride_us, dtype=np.int64)
-    if not len(times) and t_first_us is None and t_end_us is None:
-        times = np.array([(int(t[0]) + int(t[-1])) // 2], dtype=np.int64)
-    return time_windows(t, round(config.window_ms * 1000), times, config.causal)
+    return search(problem, config, init, grid, rng).omega
 
 
 def predict_stream(
@@ -415,37 +448,27 @@ def predict_stream(
     t_end_us: int | None = None,
     progress: Progress | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Estimate ω over a stream, one estimate per window of :func:`plan_windows`.
+    """Causal estimates over a stream in memory (the engine of ``spikegyro predict --method
+    cmax``), one every ``1 / config.rate_hz`` s.
 
     Args:
         events: the event stream, on the sensor's pixels.
         camera: the sensor's intrinsics or ``Calibration``; default :func:`default_camera`.
-        config: estimator settings (windows by count by default).
-        t_first_us, t_end_us: keep estimates whose reference time is in this range, µs.
-        progress: optional callable ``progress(done, total)`` called after each estimate.
+        config: estimator settings (adaptive causal windows at 100 Hz by default).
+        t_first_us: the output clock's origin (estimates at ``t_first + k / rate``, k >= 1);
+            default the first event's whole millisecond.
+        t_end_us: no estimates after this time, µs (default: the last event).
+        progress: optional callable ``progress(done, total)`` called after each batch.
 
     Returns:
-        ``(t_us, omega)``: each window's reference time (int64 µs: the middle of the window, or
-        its end for causal time windows) and its ω (K, 3) rad/s. Each estimate warm-starts the
-        next; the global search runs on the first window and every ``grid_every`` windows.
+        ``(t_us, omega)``: each estimate's time (int64 µs; it uses events up to it) and its ω
+        (K, 3) rad/s.
     """
-    config = config or CMaxConfig()
-    camera = camera or default_camera(events.width, events.height)
-    rows = plan_windows(events, config, t_first_us, t_end_us)
-    omegas = np.zeros((len(rows), 3))
-    previous: np.ndarray | None = None
-    searched = False
-    for k, (i0, i1, t_ref) in enumerate(rows):
-        window = events[int(i0) : int(i1)]
-        # Until a window has been searched globally there is nothing to track.
-        grid = not searched or (config.grid_every > 0 and k % config.grid_every == 0)
-        ref = None if config.causal else t_ref
-        previous = estimate_window(window, camera, config, init=previous, grid=grid, t_ref_us=ref)
-        searched |= grid and len(window) >= config.min_events
-        omegas[k] = previous
-        if progress is not None:
-            progress(k + 1, len(rows))
-    return rows[:, 2].copy(), omegas
+    from spikegyro.baselines.cmax_stream import CMaxEstimator
+
+    estimator = CMaxEstimator(camera, config, t0_us=t_first_us)
+    est = estimator.run(events, t_end_us, progress)
+    return est.t_us, est.omega
 
 
 def per_ms(t_us: np.ndarray, omega: np.ndarray, times_us: np.ndarray) -> np.ndarray:
@@ -471,7 +494,9 @@ def hold_per_ms(t_us: np.ndarray, omega: np.ndarray, t_start_us: int, num_steps:
     return held
 
 
-SIMULATED_CONFIG = CMaxConfig(window_ms=30.0, stride_ms=5.0, causal=True)
+
+
+SIMULATED_CONFIG = CMaxConfig(rate_hz=200.0, window=WindowPolicy(fixed_ms=30.0))
 """Causal 30 ms windows every 5 ms: the networks' setting in ``spikegyro evaluate``."""
 
 
@@ -484,34 +509,30 @@ def predict_windows(
 ) -> np.ndarray:
     """Per-ms ω (n, T, 3) rad/s for ``spikegyro.train.data.Window`` objects (evaluation's API).
 
-    Each window is streamed on its own (no events from outside it, as for the networks): an
-    estimate at the end of step ``first_step`` and every ``config.stride_ms`` after, each from
-    the events of the preceding ``config.window_ms`` (fewer at the window's start), held per ms
-    as in :func:`hold_per_ms`. Steps before ``first_step`` are zero; pass the metrics' first step
-    (50) to skip work that is not scored.
+    Each window is streamed on its own (no events from outside it, as for the networks), with
+    estimates every ``1 / config.rate_hz`` s from its start, each from the events before it
+    (fewer at the window's start), held per ms as in :func:`hold_per_ms`. Steps before
+    ``first_step`` are zero; pass the metrics' first step (50) to skip work that is not scored.
 
     Args:
         windows: objects with ``events`` (EventArray), ``omega`` (T, 3) and ``t_start_us``.
-        config: estimator settings, causal time windows (default :data:`SIMULATED_CONFIG`).
+        config: estimator settings (default :data:`SIMULATED_CONFIG`).
         camera: pinhole intrinsics (default :func:`default_camera` of the sensor).
         progress: optional callable ``progress(done, total)`` called after each window.
         first_step: first 1 ms step that gets an estimate.
     """
     config = config or SIMULATED_CONFIG
-    if config.window_ms <= 0 or not config.causal:
-        raise ValueError("predict_windows needs causal time windows (window_ms > 0, causal).")
     out = []
     for n, window in enumerate(windows):
         num_steps = int(np.asarray(window.omega).shape[0])
         t0 = int(window.t_start_us)
         t_us, omega = predict_stream(
-            window.events,
-            camera,
-            config,
-            t_first_us=t0 + 1000 * (first_step + 1),
-            t_end_us=t0 + 1000 * num_steps,
+            window.events, camera, config, t_first_us=t0, t_end_us=t0 + 1000 * num_steps
         )
-        out.append(hold_per_ms(t_us, omega, t0, num_steps))
+        keep = t_us > t0 + 1000 * first_step
+        held = hold_per_ms(t_us[keep], omega[keep], t0, num_steps)
+        held[:first_step] = 0.0
+        out.append(held)
         if progress is not None:
             progress(n + 1, len(windows))
     return np.stack(out) if out else np.zeros((0, 0, 3))

@@ -52,26 +52,25 @@ def _rotation_coefficients(theta2: float) -> tuple[float, float, float]:
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _blur(image: np.ndarray, taps: np.ndarray) -> np.ndarray:
-    """Separable blur with zero padding of a (H, W) image."""
+    """Separable blur with zero padding of a (H, W) image.
+
+    Each tap is applied to whole rows at once (innermost loop along x, contiguous), which
+    vectorizes: the blur is most of the objective's cost on a 240x180 image.
+    """
     height, width = image.shape
-    size = taps.shape[0]
-    radius = (size - 1) // 2
+    radius = (taps.shape[0] - 1) // 2
     if radius == 0:
         return image * taps[0]
-    # Padded copies keep the inner loops free of bounds checks.
-    padded = np.zeros((height, width + 2 * radius))
-    padded[:, radius : radius + width] = image
-    rows = np.zeros((height + 2 * radius, width))
+    rows = np.zeros((height, width))
     for y in range(height):
-        for x in range(width):
-            acc = 0.0
-            for k in range(size):
-                acc += taps[k] * padded[y, x + k]
-            rows[y + radius, x] = acc
+        for k in range(-radius, radius + 1):
+            w = taps[k + radius]
+            for x in range(max(0, -k), min(width, width - k)):
+                rows[y, x] += w * image[y, x + k]
     out = np.zeros((height, width))
-    for y in range(height):
-        for k in range(size):
-            w = taps[k]
+    for k in range(-radius, radius + 1):
+        w = taps[k + radius]
+        for y in range(max(0, -k), min(height, height - k)):
             for x in range(width):
                 out[y, x] += w * rows[y + k, x]
     return out

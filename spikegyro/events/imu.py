@@ -22,6 +22,11 @@ events' clock; the reference for an estimate at event time ``t`` is ``gyro(t - o
 
 from __future__ import annotations
 
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
 import numpy as np
 
 from spikegyro.errors import InputError
@@ -30,7 +35,9 @@ from spikegyro.events.core import GyroTrace
 IMU_TO_CAMERA_HELP = (
     "Rotation from the IMU's axes to the camera's (x right, y down, z forward): signed axes, one "
     "per camera axis, e.g. '-x,-y,z' for omega_cam = (-gx, -gy, gz), or 9 numbers, the rows of "
-    "R with omega_cam = R omega_imu. Default: the gyro is already in the camera frame."
+    "R with omega_cam = R omega_imu (`spikegyro calibrate-imu` estimates it). Default: text and "
+    "HDF5 gyros are in the camera frame; a camera file's IMU gets its camera's known rotation "
+    "(jAER DAVIS240: -x,-y,z), else stays in IMU axes with a warning."
 )
 """Help text of the ``--imu-to-camera`` option, shared by every command that reads a gyro."""
 
@@ -141,3 +148,170 @@ def covers(trace: GyroTrace, t_us: np.ndarray) -> np.ndarray:
     if len(trace) == 0:
         return np.zeros(t.shape, dtype=bool)
     return (t >= trace.t[0]) & (t <= trace.t[-1])
+
+
+KNOWN_IMU_TO_CAMERA: dict[tuple[str, str], tuple[str, str]] = {
+    ("jaer2", "davis240"): (
+        "-x,-y,z",
+        "jAER DAVIS240 files: the IMU's x and y point against the camera's once jAER's y is "
+        "flipped to point down (contrast maximization against the gyro on real DAVIS240C pan "
+        "and roll recordings)",
+    ),
+}
+"""(format, camera model substring) -> (``--imu-to-camera`` value, where it comes from), for
+cameras whose IMU mounting is known. Other cameras' gyros stay in their IMU's axes."""
+
+
+@dataclass(frozen=True)
+class GyroFrame:
+    """How a gyro file's samples are taken into the camera frame.
+
+    Attributes:
+        rotation: R with ω_camera = R ω_file, or None (used as it is).
+        message: what the user should be told (None: nothing to say).
+        warning: whether ``message`` is a warning (the frame is unknown) rather than a note.
+    """
+
+    rotation: np.ndarray | None
+    message: str | None = None
+    warning: bool = False
+
+
+def gyro_frame(gyro_path: str | os.PathLike, imu_to_camera: str | None) -> GyroFrame:
+    """The rotation to apply to ``gyro_path``'s samples, and what to say about it.
+
+    ``--imu-to-camera`` wins. Text and HDF5 gyros are in the camera frame by convention. A
+    camera file's IMU is in its own axes: its known rotation (:data:`KNOWN_IMU_TO_CAMERA`) is
+    applied with a note, otherwise a warning says the gyro stays in IMU axes.
+    """
+    if imu_to_camera:
+        return GyroFrame(imu_rotation(imu_to_camera))
+    from spikegyro.events import io  # io imports this module
+
+    path = Path(gyro_path)
+    kind = io.detect_format(path)
+    if kind not in io.CAMERA_FORMATS:
+        return GyroFrame(None)
+    header = io.CAMERA_FORMATS[kind].read_header(path, kind)
+    model = str(header.attrs.get("camera", "")) or kind
+    for (fmt, name), (text, source) in KNOWN_IMU_TO_CAMERA.items():
+        if fmt == kind and name in model.lower().replace("_", ""):
+            return GyroFrame(
+                imu_rotation(text),
+                f"gyro of a {model} ({kind}) file: applying --imu-to-camera {text} ({source}); "
+                "pass --imu-to-camera to override.",
+            )
+    return GyroFrame(
+        None,
+        f"the gyro of {path.name} ({model}) is in its IMU's axes and this camera's IMU-to-camera "
+        "rotation is not known: it is compared unrotated. Estimate it with `spikegyro "
+        "calibrate-imu` and pass --imu-to-camera.",
+        warning=True,
+    )
+
+
+def rotation_text(rotation: np.ndarray, tolerance_deg: float = 5.0) -> str:
+    """``--imu-to-camera`` text for R: signed axes (``"-x,-y,z"``) when R is within
+    ``tolerance_deg`` of a signed permutation, else its 9 numbers row by row."""
+    r = np.asarray(rotation, dtype=np.float64)
+    axes = np.abs(r).argmax(axis=1)
+    perm = np.zeros((3, 3))
+    perm[np.arange(3), axes] = np.sign(r[np.arange(3), axes])
+    if sorted(axes) == [0, 1, 2] and np.linalg.det(perm) > 0:
+        cos = np.clip((np.trace(perm.T @ r) - 1) / 2, -1.0, 1.0)
+        if np.degrees(np.arccos(cos)) <= tolerance_deg:
+            names = "xyz"
+            return ",".join(
+                ("-" if perm[i, axes[i]] < 0 else "") + names[axes[i]] for i in range(3)
+            )
+    return ",".join(f"{v:.4f}" for v in r.ravel())
+
+
+@dataclass(frozen=True)
+class ImuFit:
+    """The gyro's frame, bias and clock offset fitted to camera-frame angular velocities.
+
+    The model: ``ω_camera(t) = R (g(t - offset) - bias)`` for gyro samples ``g`` in the IMU's
+    axes (see :func:`shift_gyro` for the offset's sign).
+
+    Attributes:
+        rotation: R (3, 3), ω_camera = R ω_imu.
+        bias: (3,) rad/s, in the IMU's axes (subtract from the raw gyro).
+        offset_us: added to the gyro's timestamps to put them on the events' clock.
+        rms_rad_s: RMS residual per sample (Euclidean), rad/s.
+        samples: estimates used.
+        spread_rad_s: (3,) singular values of the gyro's centred samples / sqrt(samples):
+            how much the motion spans each direction (the rotation is only determined about
+            directions that were excited).
+    """
+
+    rotation: np.ndarray
+    bias: np.ndarray
+    offset_us: float
+    rms_rad_s: float
+    samples: int
+    spread_rad_s: np.ndarray
+
+
+def _fit_rotation_bias(
+    omega_cam: np.ndarray, g: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """Least-squares R in SO(3) and bias b with ω_cam ≈ R (g - b) (centred Kabsch); returns
+    (R, b, RMS residual, singular values of the centred g / sqrt(n))."""
+    mean_c, mean_g = omega_cam.mean(axis=0), g.mean(axis=0)
+    c, gc = omega_cam - mean_c, g - mean_g
+    u, _, vt = np.linalg.svd(gc.T @ c)
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    rotation = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    bias = mean_g - rotation.T @ mean_c
+    residual = omega_cam - (g - bias) @ rotation.T
+    rms = float(np.sqrt((residual**2).sum(axis=1).mean()))
+    spread = np.linalg.svd(gc, compute_uv=False) / math.sqrt(len(g))
+    return rotation, bias, rms, spread
+
+
+def fit_imu_to_camera(
+    t_us: np.ndarray,
+    omega_cam: np.ndarray,
+    gyro: GyroTrace,
+    max_offset_us: float = 50_000.0,
+    step_us: float = 1000.0,
+) -> ImuFit:
+    """Fit the IMU-to-camera rotation, the gyro's bias and the clock offset (see :class:`ImuFit`).
+
+    Args:
+        t_us: times of camera-frame estimates ω (e.g. contrast maximization's), µs.
+        omega_cam: (K, 3) those estimates, rad/s.
+        gyro: the raw gyro, in its IMU's axes.
+        max_offset_us, step_us: offsets tried, ``-max..max`` every ``step_us``; the best is
+            refined by a parabola through its neighbours.
+
+    Raises :class:`InputError` when fewer than 10 estimates overlap the gyro.
+    """
+    t = np.asarray(t_us, dtype=np.float64)
+    omega_cam = np.asarray(omega_cam, dtype=np.float64)
+
+    def fit(offset: float) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, int]:
+        shifted = t - offset
+        inside = (shifted >= gyro.t[0]) & (shifted <= gyro.t[-1])
+        if inside.sum() < 10:
+            return np.eye(3), np.zeros(3), math.inf, np.zeros(3), int(inside.sum())
+        g = gyro.interpolate(shifted[inside])
+        return (*_fit_rotation_bias(omega_cam[inside], g), int(inside.sum()))
+
+    offsets = np.arange(-max_offset_us, max_offset_us + step_us / 2, step_us)
+    costs = np.array([fit(o)[2] for o in offsets])
+    if not np.isfinite(costs).any():
+        raise InputError(
+            "fewer than 10 estimates overlap the gyro's time span; check that the gyro belongs "
+            "to this recording (same clock)."
+        )
+    best = int(np.argmin(costs))
+    offset = float(offsets[best])
+    if 0 < best < len(offsets) - 1 and np.isfinite(costs[best - 1 : best + 2]).all():
+        a, b, c = (costs[best - 1 : best + 2] ** 2).tolist()  # squared: a parabola near the min
+        curvature = a - 2 * b + c
+        if curvature > 0:
+            offset += 0.5 * step_us * (a - c) / curvature
+    rotation, bias, rms, spread, n = fit(offset)
+    return ImuFit(rotation, bias, offset, rms, n, spread)

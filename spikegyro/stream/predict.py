@@ -1,11 +1,15 @@
-"""Streaming prediction from an event file: geometry mapping, 1 ms binning, metrics against a gyro.
+"""Streaming prediction from an event file: any estimator, metrics against a gyro, flat memory.
 
-The pipeline never holds more than one chunk of events: ``iter_event_chunks`` -> reproject onto
-the model's camera -> split into completed 1 ms bins -> :class:`StreamingSNN` -> prediction
-writer. The engine is swappable: anything with ``push``/``finish`` (a :class:`Predictor`), such as
-the batched torch path of :mod:`spikegyro.stream.batched`, can take the stream's place.
+The pipeline never holds more than one chunk of events: ``iter_event_chunks`` -> a
+:class:`~spikegyro.stream.estimator.GyroEstimator` (``update`` per chunk, ``finish`` at the end)
+-> prediction writer, each estimate scored against the gyro interpolated at its time. Two
+estimators: contrast maximization (``spikegyro.baselines.cmax_stream.CMaxEstimator``: causal
+adaptive windows at a fixed rate, the one for real cameras) and the network
+(:class:`SNNEstimator`: reproject onto the model's camera -> split into completed 1 ms bins ->
+:class:`StreamingSNN`, or anything with ``push``/``finish`` (a :class:`Predictor`), such as the
+batched torch path of :mod:`spikegyro.stream.batched`).
 Memory is flat in the length of the recording (the plot keeps a decimated copy of at most
-``_PLOT_POINTS`` samples; the median relative error comes from a fine log histogram).
+``_PLOT_POINTS`` samples; the median relative error and the latency come from histograms).
 """
 
 from __future__ import annotations
@@ -24,6 +28,12 @@ from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration, PinholeCamera
 from spikegyro.events.core import EventArray
 from spikegyro.events.io import detect_format, iter_event_chunks, open_hdf5, read_gyro
+from spikegyro.stream.estimator import (
+    ILL_FEW_EVENTS,
+    ILL_LITTLE_MOTION,
+    Estimates,
+    GyroEstimator,
+)
 from spikegyro.stream.stateful import StreamingSNN
 from spikegyro.stream.writer import PredictionWriter, write_predictions
 
@@ -31,6 +41,7 @@ __all__ = [
     "ErrorStats",
     "Predictor",
     "PredictorFactory",
+    "SNNEstimator",
     "StreamPredictor",
     "event_mapper",
     "model_camera",
@@ -152,6 +163,85 @@ class StreamPredictor:
         return t_us, omega
 
 
+class SNNEstimator:
+    """The spiking network as a :class:`~spikegyro.stream.estimator.GyroEstimator`: one
+    estimate per 1 ms bin, stamped at the bin's end (it uses the events before it).
+
+    Args:
+        engine: the stateful network (:class:`StreamingSNN`), or a :data:`PredictorFactory`
+            (e.g. the batched torch path).
+        input_spec: the checkpoint's input description (sensor, scale, intrinsics).
+        calibration: the sensor's calibration; None when the sensor is the model's own.
+        rate_hz: keep one bin in ``1000 / rate_hz`` (a divisor of 1000); None or 1000: all.
+        source: the events' name in error messages.
+    """
+
+    def __init__(
+        self,
+        engine: StreamingSNN | PredictorFactory,
+        input_spec: dict[str, Any] | None = None,
+        calibration: Calibration | None = None,
+        rate_hz: float | None = None,
+        source: str = "events",
+    ) -> None:
+        self.engine, self.input_spec = engine, dict(input_spec or {})
+        self.calibration, self.source = calibration, source
+        every = 1 if rate_hz is None else 1000.0 / rate_hz
+        if every < 1 or abs(every - round(every)) > 1e-9:
+            raise InputError(
+                f"--rate-hz {rate_hz:g}: the SNN answers every 1 ms; use a divisor of 1000 Hz."
+            )
+        self.every = round(every)
+        self.label = "SNN"
+        self.confidence = False
+        self.reset()
+
+    def reset(self, t0_us: int | None = None) -> None:
+        """Start a new stream with bins from ``t0_us`` (None: the first event's millisecond)."""
+        self.t0_us = t0_us
+        self._predictor: Predictor | None = None
+        self._mapper: Callable[[EventArray], EventArray] | None = None
+
+    @property
+    def steps(self) -> int:
+        """1 ms bins run so far."""
+        return 0 if self._predictor is None else self._predictor.steps
+
+    def update(self, events: EventArray) -> Estimates:
+        """Run the bins the batch completes."""
+        if not len(events):
+            return Estimates.empty()
+        if self._predictor is None:
+            self._start(events)
+        return self._keep(*self._predictor.push(self._mapper(events)))
+
+    def finish(self, t_end_us: int) -> Estimates:
+        """Run the bins up to the one holding ``t_end_us - 1``."""
+        if self._predictor is None:
+            return Estimates.empty()
+        return self._keep(*self._predictor.finish(t_end_us))
+
+    def _start(self, events: EventArray) -> None:
+        if self.t0_us is None:
+            self.t0_us = int(events.t[0]) // BIN_US * BIN_US
+        target = model_camera(self.input_spec)
+        if isinstance(self.engine, StreamingSNN):
+            self.engine.reset()
+            self._predictor = StreamPredictor(self.engine, target.width, self.t0_us)
+        else:
+            self._predictor = self.engine(target, self.t0_us)
+        self.label = self._predictor.label
+        self._mapper = event_mapper(
+            events.sensor_size, self.input_spec, self.calibration, self.source
+        )
+
+    def _keep(self, t_us: np.ndarray, omega: np.ndarray) -> Estimates:
+        if self.every > 1:
+            keep = (t_us - self.t0_us) % (self.every * BIN_US) == 0
+            t_us, omega = t_us[keep], omega[keep]
+        return Estimates(t_us, omega)
+
+
 @dataclass
 class ErrorStats:
     """Running error statistics of predictions against a reference, in bounded memory."""
@@ -160,6 +250,7 @@ class ErrorStats:
     sum_err: float = 0.0
     sum_sq: float = 0.0
     sum_sq_axis: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    sum_abs_axis: np.ndarray = field(default_factory=lambda: np.zeros(3))
     # log10 relative error histogram, 0.1% resolution, for the median
     hist: np.ndarray = field(default_factory=lambda: np.zeros(8002, dtype=np.int64))
 
@@ -172,6 +263,7 @@ class ErrorStats:
         self.sum_err += float(err.sum())
         self.sum_sq += float((err**2).sum())
         self.sum_sq_axis += (diff**2).sum(axis=0)
+        self.sum_abs_axis += np.abs(diff).sum(axis=0)
         norm = np.linalg.norm(reference[ok], axis=1)
         big = norm >= _MIN_NORM_RAD
         rel = np.log10(np.maximum(err[big] / norm[big], 1e-30))
@@ -179,7 +271,8 @@ class ErrorStats:
         self.hist += np.bincount(bins, minlength=len(self.hist))
 
     def summary(self) -> dict[str, float]:
-        """Mean Euclidean error, RMSE, per-axis RMSE (deg/s) and median relative error."""
+        """Mean Euclidean error, RMSE, per-axis RMSE and mean absolute error (deg/s), and the
+        median relative error."""
         if not self.count:
             return {}
         cum = np.cumsum(self.hist)
@@ -189,6 +282,7 @@ class ErrorStats:
         else:
             median_rel = float("nan")
         axis_rmse = np.degrees(np.sqrt(self.sum_sq_axis / self.count))
+        axis_mae = np.degrees(self.sum_abs_axis / self.count)
         return {
             "samples": self.count,
             "mean_error_deg_s": math.degrees(self.sum_err / self.count),
@@ -196,6 +290,9 @@ class ErrorStats:
             "rmse_x_deg_s": float(axis_rmse[0]),
             "rmse_y_deg_s": float(axis_rmse[1]),
             "rmse_z_deg_s": float(axis_rmse[2]),
+            "mae_x_deg_s": float(axis_mae[0]),
+            "mae_y_deg_s": float(axis_mae[1]),
+            "mae_z_deg_s": float(axis_mae[2]),
             "median_relative_error": float(median_rel),
         }
 
@@ -286,14 +383,33 @@ def _chain(first: EventArray, rest: Iterator[EventArray]) -> Iterator[EventArray
 
 @dataclass
 class StreamResult:
-    """What :func:`predict_stream` did."""
+    """What :func:`predict_stream` did.
+
+    Attributes:
+        steps: whole milliseconds of events covered (from ``t0_us``).
+        estimates: rows written, each its own estimate.
+        events: events read.
+        wall_s, cpu_s: wall-clock and CPU time of this process, seconds.
+        t0_us: start of the output clock, µs.
+        engine: the estimator's label.
+        stats: error statistics against the gyro (:meth:`ErrorStats.summary`), from
+            :data:`WARMUP_STEPS` ms on.
+        latency_ms: median of how far each estimate's events lie, on average, before its time
+            (NaN where the estimator does not say).
+        ill_posed: estimates flagged with too few events, and with too little motion.
+        plot: the plot against the gyro, if drawn.
+    """
 
     steps: int = 0
+    estimates: int = 0
     events: int = 0
     wall_s: float = 0.0
+    cpu_s: float = 0.0
     t0_us: int = 0
     engine: str = ""
     stats: dict[str, float] = field(default_factory=dict)
+    latency_ms: float = float("nan")
+    ill_posed: tuple[int, int] = (0, 0)
     plot: Path | None = None
 
     @property
@@ -301,11 +417,42 @@ class StreamResult:
         """Seconds of events processed per second of wall time."""
         return self.steps * BIN_US / 1e6 / self.wall_s if self.wall_s > 0 else float("inf")
 
+    @property
+    def cpu_realtime_factor(self) -> float:
+        """Seconds of events processed per CPU-second (what one free core would do)."""
+        return self.steps * BIN_US / 1e6 / self.cpu_s if self.cpu_s > 0 else float("inf")
+
+    @property
+    def rate_hz(self) -> float:
+        """Distinct estimates per second of events."""
+        return self.estimates / (self.steps * BIN_US / 1e6) if self.steps else 0.0
+
+
+class _Summary:
+    """Running latency median (histogram, 0.1 ms bins) and ill-posed counts."""
+
+    def __init__(self) -> None:
+        self.delay_hist = np.zeros(10_001, dtype=np.int64)
+        self.few = self.little = 0
+
+    def add(self, est: Estimates) -> None:
+        delay = est.delay_us[np.isfinite(est.delay_us)]
+        bins = np.clip((delay / 100).astype(np.int64), 0, len(self.delay_hist) - 1)
+        self.delay_hist += np.bincount(bins, minlength=len(self.delay_hist))
+        self.few += int((est.ill_posed & ILL_FEW_EVENTS).astype(bool).sum())
+        self.little += int((est.ill_posed & ILL_LITTLE_MOTION).astype(bool).sum())
+
+    def latency_ms(self) -> float:
+        cum = np.cumsum(self.delay_hist)
+        if not cum[-1]:
+            return float("nan")
+        return (int(np.searchsorted(cum, (cum[-1] + 1) // 2)) + 0.5) / 10
+
 
 def predict_stream(
     events_path: str | os.PathLike,
-    engine: StreamingSNN | PredictorFactory,
-    input_spec: dict[str, Any],
+    engine: StreamingSNN | PredictorFactory | GyroEstimator,
+    input_spec: dict[str, Any] | None,
     out_path: str | os.PathLike,
     *,
     calibration: Calibration | None = None,
@@ -318,17 +465,19 @@ def predict_stream(
     on_progress: Callable[[float, float], None] | None = None,
     plot: bool = True,
 ) -> StreamResult:
-    """Stream ``events_path`` through ``engine``, writing ω every 1 ms to ``out_path``.
+    """Stream ``events_path`` through an estimator, writing each estimate to ``out_path``.
 
     Args:
         events_path: any event file :mod:`spikegyro.events.io` reads.
-        engine: the stateful network (reset here), or a factory of another :class:`Predictor`
-            (e.g. :func:`spikegyro.stream.batched.batched_predictor`).
-        input_spec: the checkpoint's input description (sensor, scale, intrinsics).
+        engine: a :class:`~spikegyro.stream.estimator.GyroEstimator` (e.g.
+            ``CMaxEstimator``, :class:`SNNEstimator`; reset here), or the stateful network, or
+            a factory of another :class:`Predictor` (both wrapped in :class:`SNNEstimator`).
+        input_spec: the checkpoint's input description (sensor, scale, intrinsics), for the
+            network; None for other estimators.
         out_path: ``.csv`` or ``.h5`` prediction file (written atomically).
-        calibration: the sensor's calibration; None when the sensor is the model's own.
+        calibration: the sensor's calibration, for the network (an estimator has its own).
         gyro_path: reference angular velocity (gyro/IMU text, or a file with ground truth),
-            interpolated to the prediction times; adds columns, error statistics and a plot.
+            interpolated to each estimate's time; adds columns, error statistics and a plot.
         gyro_rotation: R with ω_camera = R · ω_gyro (:func:`spikegyro.events.imu.imu_rotation`)
             when the gyro is not in the camera frame.
         sensor: (width, height) override for files that do not say (text defaults to 240x180).
@@ -341,55 +490,66 @@ def predict_stream(
     gyro = None if gyro_path is None else read_gyro(gyro_path, imu_to_camera=gyro_rotation)
     if end_s is not None and end_s <= start_s:
         raise InputError(f"--end {end_s} s must be after --start {start_s} s.")
+    estimator = (
+        engine
+        if isinstance(engine, GyroEstimator)
+        else SNNEstimator(engine, input_spec, calibration, source=str(events_path))
+    )
     result = StreamResult()
     t0, t_end, chunks = _bounded_chunks(events_path, sensor, chunk_events, start_s, end_s)
     if t0 is None:
         raise InputError(f"{events_path}: the file holds no events.")
     result.t0_us = t0
-    target = model_camera(input_spec)
-    if isinstance(engine, StreamingSNN):
-        engine.reset()
-        predictor: Predictor = StreamPredictor(engine, target.width, t0)
-    else:
-        predictor = engine(target, t0)
-    result.engine = predictor.label
-    stats, series = ErrorStats(), _Decimated()
-    mapper: Callable[[EventArray], EventArray] | None = None
-    start = time.perf_counter()
+    estimator.reset(t0)
+    stats, series, summary = ErrorStats(), _Decimated(), _Summary()
+    start, cpu = time.perf_counter(), time.process_time()
     last_t = t0
 
-    def emit(writer: PredictionWriter, t_us: np.ndarray, omega: np.ndarray) -> None:
+    def emit(writer: PredictionWriter, est: Estimates) -> None:
         ref = None
         if gyro is not None:
-            ref = gyro.interpolate(t_us)
-            outside = (t_us < gyro.t[0]) | (t_us > gyro.t[-1]) if len(gyro) else True
+            ref = gyro.interpolate(est.t_us)
+            outside = (est.t_us < gyro.t[0]) | (est.t_us > gyro.t[-1]) if len(gyro) else True
             ref[outside] = np.nan
-            scored = t_us > t0 + WARMUP_STEPS * BIN_US
-            stats.add(omega[scored], ref[scored])
-            series.add(np.column_stack([t_us, omega, ref]))
-        writer.append(t_us, omega, ref)
+            scored = est.t_us > t0 + WARMUP_STEPS * BIN_US
+            stats.add(est.omega[scored], ref[scored])
+            series.add(np.column_stack([est.t_us, est.omega, ref]))
+        summary.add(est)
+        result.estimates += len(est)
+        writer.append(est.t_us, est.omega, ref, est if writer.with_confidence else None)
 
-    with PredictionWriter(out_path, with_gyro=gyro is not None) as writer:
+    confidence = bool(getattr(estimator, "confidence", False))
+    with PredictionWriter(out_path, with_gyro=gyro is not None, with_confidence=confidence) as w:
         for chunk in chunks:
-            if mapper is None:
-                mapper = event_mapper(chunk.sensor_size, input_spec, calibration, str(events_path))
             result.events += len(chunk)
             last_t = int(chunk.t[-1])
-            emit(writer, *predictor.push(mapper(chunk)))
+            emit(w, estimator.update(chunk))
             if on_progress is not None:
-                on_progress(predictor.steps * BIN_US / 1e6, time.perf_counter() - start)
+                on_progress((last_t - t0) / 1e6, time.perf_counter() - start)
         if not result.events:
             raise InputError(f"{events_path}: no events between --start and --end.")
-        emit(writer, *predictor.finish(t_end if t_end is not None else last_t + 1))
+        end = t_end if t_end is not None else last_t + 1
+        emit(w, estimator.finish(end))
     result.wall_s = time.perf_counter() - start
-    result.steps = predictor.steps
+    result.cpu_s = time.process_time() - cpu
+    result.steps = -(-(end - t0) // BIN_US)
+    result.engine = estimator.label
     result.stats = stats.summary()
+    result.latency_ms = summary.latency_ms()
+    result.ill_posed = (summary.few, summary.little)
     if gyro is not None and plot:
-        result.plot = plot_against_gyro(Path(out_path).with_suffix(".png"), series.table(), t0)
+        result.plot = plot_against_gyro(
+            Path(out_path).with_suffix(".png"), series.table(), t0, _short_label(estimator)
+        )
     return result
 
 
-def plot_against_gyro(path: Path, table: np.ndarray, t0_us: int) -> Path:
+def _short_label(estimator: Any) -> str:
+    """The method's name on plots: ``CMax`` or ``SNN``."""
+    return "CMax" if "contrast" in str(getattr(estimator, "label", "")) else "SNN"
+
+
+def plot_against_gyro(path: Path, table: np.ndarray, t0_us: int, label: str = "SNN") -> Path:
     """Predicted and reference ω per axis (deg/s) over time; ``table`` rows: t_us, ω(3), ref(3)."""
     import matplotlib
 
@@ -404,7 +564,7 @@ def plot_against_gyro(path: Path, table: np.ndarray, t0_us: int) -> Path:
         zip(axes, ("ω_x (tilt)", "ω_y (pan)", "ω_z (roll)"), strict=True)
     ):
         ax.plot(t, np.degrees(table[:, 4 + k]), color="0.3", lw=1.0, label="gyro")
-        ax.plot(t, np.degrees(table[:, 1 + k]), color="C3", lw=0.8, label="SNN")
+        ax.plot(t, np.degrees(table[:, 1 + k]), color="C3", lw=0.8, label=label)
         ax.set_ylabel(f"{name}\n[deg/s]")
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right", ncol=2)

@@ -7,7 +7,14 @@ Columns / datasets (angular velocity in rad/s, camera frame):
 - HDF5: ``t_us`` (K,) int64 microseconds, ``omega`` (K, 3) float32 rad/s; with a gyro reference
   also ``gyro_omega`` (K, 3). The layout mirrors the official ``ang_ts`` / ``ang_xyz`` pair.
 
-A CSV prediction file reads back with :func:`spikegyro.events.io.read_gyro`.
+Estimators that report their confidence (contrast maximization) add, per estimate:
+``events`` (events in its window), ``window_ms`` (the window's span), ``contrast_gain`` (its
+contrast over that of ω = 0; near 1: no structure found) and ``ill_posed`` (bits: 1 too few
+events, 2 too little motion to tell from none); as CSV columns after the others, as HDF5
+datasets of those names.
+
+A CSV prediction file without confidence or gyro columns reads back with
+:func:`spikegyro.events.io.read_gyro`; any reads back with :func:`read_predictions`.
 """
 
 from __future__ import annotations
@@ -16,6 +23,7 @@ import os
 from contextlib import ExitStack
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 import h5py
 import numpy as np
@@ -25,6 +33,7 @@ from spikegyro.errors import InputError
 from spikegyro.events.io import atomic_path
 
 _CSV_SUFFIXES = (".csv", ".txt")
+CONFIDENCE_COLUMNS = ("events", "window_ms", "contrast_gain", "ill_posed")
 _H5_SUFFIXES = (".h5", ".hdf5")
 
 
@@ -42,9 +51,12 @@ class PredictionWriter:
             w.append(t_us, omega, gyro_omega)
     """
 
-    def __init__(self, path: str | os.PathLike, *, with_gyro: bool = False) -> None:
+    def __init__(
+        self, path: str | os.PathLike, *, with_gyro: bool = False, with_confidence: bool = False
+    ) -> None:
         self.path = check_prediction_path(path)
         self.with_gyro = with_gyro
+        self.with_confidence = with_confidence
         self.rows = 0
         self._stack = ExitStack()
         self._csv = None
@@ -63,22 +75,42 @@ class PredictionWriter:
                 )
             self._h5["omega"].attrs["units"] = "rad/s"
             self._h5["t_us"].attrs["units"] = "us"
+            for name in CONFIDENCE_COLUMNS if self.with_confidence else ():
+                self._h5.create_dataset(
+                    name, shape=(0,), maxshape=(None,), dtype=np.float32, chunks=(65536,)
+                )
         else:
             self._csv = self._stack.enter_context(open(tmp, "w", newline=""))
             header = "t,wx,wy,wz" + (",gyro_wx,gyro_wy,gyro_wz,err" if self.with_gyro else "")
+            header += "".join(f",{c}" for c in CONFIDENCE_COLUMNS) if self.with_confidence else ""
             self._csv.write(header + "\n")
         return self
 
     def append(
-        self, t_us: np.ndarray, omega: np.ndarray, gyro_omega: np.ndarray | None = None
+        self,
+        t_us: np.ndarray,
+        omega: np.ndarray,
+        gyro_omega: np.ndarray | None = None,
+        confidence: Any = None,
     ) -> None:
-        """Add rows: times (µs), predicted ω (K, 3) rad/s and, if enabled, the gyro's ω (K, 3)."""
+        """Add rows: times (µs), predicted ω (K, 3) rad/s and, if enabled, the gyro's ω (K, 3)
+        and the confidence (an ``Estimates``: events, window_us, contrast_gain, ill_posed)."""
         t_us = np.asarray(t_us, dtype=np.int64)
         omega = np.asarray(omega, dtype=np.float64).reshape(-1, 3)
         if self.with_gyro != (gyro_omega is not None):
             raise ValueError("gyro_omega must be given exactly when the writer has with_gyro")
+        if self.with_confidence != (confidence is not None):
+            raise ValueError("confidence must be given exactly when the writer has it")
+        extra = {}
+        if confidence is not None:
+            extra = {
+                "events": np.asarray(confidence.events, dtype=np.float64),
+                "window_ms": np.asarray(confidence.window_us, dtype=np.float64) / 1000.0,
+                "contrast_gain": np.asarray(confidence.contrast_gain, dtype=np.float64),
+                "ill_posed": np.asarray(confidence.ill_posed, dtype=np.float64),
+            }
         if self._h5 is not None:
-            blocks = {"t_us": t_us, "omega": omega}
+            blocks = {"t_us": t_us, "omega": omega, **extra}
             if gyro_omega is not None:
                 blocks["gyro_omega"] = gyro_omega
             for name, block in blocks.items():
@@ -93,6 +125,9 @@ class PredictionWriter:
                 err = np.linalg.norm(omega - gyro_omega, axis=1)
                 columns += [gyro_omega, err[:, None]]
                 fmt += ["%.7g"] * 4
+            if extra:
+                columns += [extra[name][:, None] for name in CONFIDENCE_COLUMNS]
+                fmt += ["%d", "%.3f", "%.5f", "%d"]
             np.savetxt(self._csv, np.hstack(columns), fmt=fmt, delimiter=",")
         self.rows += len(t_us)
 
@@ -129,11 +164,20 @@ def read_predictions(path: str | os.PathLike) -> dict[str, np.ndarray]:
     path = check_prediction_path(path)
     if not path.exists():
         raise InputError(f"{path}: no such prediction file.")
+    names = ("t_us", "omega", "gyro_omega", *CONFIDENCE_COLUMNS)
     if path.suffix.lower() in _H5_SUFFIXES:
         with h5py.File(path, "r") as f:
-            return {k: f[k][()] for k in ("t_us", "omega", "gyro_omega") if k in f}
+            return {k: f[k][()] for k in names if k in f}
+    with open(path) as f:
+        header = f.readline().strip().split(",")
     table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    if table.shape[0] == 0:
+        table = np.zeros((0, len(header)))
     out = {"t_us": np.rint(table[:, 0] * 1e6).astype(np.int64), "omega": table[:, 1:4]}
-    if table.shape[1] >= 7:
-        out["gyro_omega"] = table[:, 4:7]
+    if "gyro_wx" in header:
+        i = header.index("gyro_wx")
+        out["gyro_omega"] = table[:, i : i + 3]
+    for name in CONFIDENCE_COLUMNS:
+        if name in header:
+            out[name] = table[:, header.index(name)]
     return out
