@@ -31,3 +31,27 @@ def test_version_prints_and_exits_0() -> None:
 
     res = _run("--version")
     assert res.returncode == 0 and res.stdout.strip() == __version__
+
+
+def test_exit_code_returned_by_a_command_is_kept(monkeypatch) -> None:
+    """Typer returns a command's typer.Exit code instead of exiting; run() must pass it on."""
+    from spikegyro import cli
+
+    calls = []
+    monkeypatch.setattr(type(cli.app), "__call__", lambda self, **k: calls.append(k) or 130)
+    assert cli.run(["train"]) == 130 and calls
+
+
+def test_numba_wrapped_ctrl_c_counts_as_an_interrupt() -> None:
+    from spikegyro.errors import is_interrupt
+
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise SystemError("returned a result with an exception set") from None
+    except SystemError as exc:
+        wrapped = exc
+    assert is_interrupt(wrapped)
+    assert not is_interrupt(SystemError("a real bug"))
+    assert not is_interrupt(ValueError("bad value"))
