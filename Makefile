@@ -5,8 +5,9 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+DOCS_STAMP := $(VENV)/.docs-installed
 
-.PHONY: install test test-slow lint demo demo-finetune bench clean
+.PHONY: install test test-slow lint docs demo demo-finetune bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -18,9 +19,17 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 lint: $(STAMP)
-	$(BIN)/ruff check spikegyro tests bench
+	$(BIN)/ruff check spikegyro tests bench scripts
 
-test: lint
+# The documentation site (MkDocs) into site/; --strict turns every warning into an error.
+$(DOCS_STAMP): $(STAMP)
+	$(BIN)/python -m pip install -q -e ".[test,docs]"
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
+
+test: lint docs
 	$(BIN)/python -m pytest -q
 
 test-slow: $(STAMP)
@@ -34,7 +43,8 @@ demo-finetune: $(STAMP)
 	$(BIN)/spikegyro demo --finetune-minutes 5
 
 # The CPU benchmarks that run on their own; gpu_step.py (CUDA), nir_snntorch.py and
-# roll_readout.py (datasets to pass) are run with the commands in BENCHMARKS.md.
+# the analysis scripts in scripts/analysis/ (datasets to pass) are run with the commands in
+# BENCHMARKS.md and docs/analysis.md.
 CPU_BENCHES := simulator snn_step streaming cmax formats
 
 bench: $(STAMP)
@@ -42,4 +52,4 @@ bench: $(STAMP)
 	for b in $(CPU_BENCHES); do $(BIN)/python bench/$$b.py || exit 1; done
 
 clean:
-	rm -rf $(VENV) demo-output .pytest_cache .ruff_cache
+	rm -rf $(VENV) demo-output site .pytest_cache .ruff_cache

@@ -1,0 +1,131 @@
+"""The documentation and the files a published package carries: no reference dangles.
+
+`make docs` builds the site with warnings as errors (broken links inside docs/ included); these
+tests cover what MkDocs cannot see: references from the code, the tests, the scripts and the
+top-level Markdown files to docs pages, scripts and benchmarks.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+
+import pytest
+import tomllib
+import yaml
+
+from spikegyro.errors import InputError
+
+ROOT = Path(__file__).resolve().parents[1]
+SOURCES = [
+    *sorted((ROOT / "spikegyro").rglob("*.py")),
+    *sorted((ROOT / "spikegyro").rglob("*.md")),
+    *sorted((ROOT / "tests").glob("*.py")),
+    *sorted((ROOT / "bench").glob("*.py")),
+    *sorted((ROOT / "scripts").rglob("*.*")),
+    *sorted((ROOT / "relay").rglob("*.md")),
+    *sorted((ROOT / "docs").rglob("*.md")),
+    ROOT / "README.md",
+    ROOT / "BENCHMARKS.md",
+    ROOT / "CHANGELOG.md",
+    ROOT / "Makefile",
+]
+# A path inside the repository as the text names it: docs/x.md, scripts/.../x.sh, bench/x.py.
+REFERENCE = re.compile(r"(?<![\w/.-])((?:docs|scripts|bench|relay)/[\w./-]*\w)")
+
+
+def _texts() -> list[tuple[Path, str]]:
+    return [(p, p.read_text(errors="replace")) for p in SOURCES if p.is_file()]
+
+
+def test_no_reference_to_the_retired_design_notes() -> None:
+    retired = ("DESIGN" + ".md", "docs/" + "notes")
+    found = [
+        f"{path.relative_to(ROOT)}:{n}"
+        for path, text in _texts()
+        if path != Path(__file__).resolve()
+        for n, line in enumerate(text.splitlines(), 1)
+        if any(word in line for word in retired)
+    ]
+    assert not found, f"references to retired notes (point at a docs/ page instead): {found}"
+
+
+def test_every_referenced_repository_path_exists() -> None:
+    missing = []
+    for path, text in _texts():
+        if path == Path(__file__).resolve():
+            continue
+        for match in REFERENCE.finditer(text):
+            ref = match.group(1).rstrip(".")
+            if "*" in ref or ref.endswith("/"):
+                continue
+            # Links inside docs/ pages are relative to the page; MkDocs checks those.
+            if path.is_relative_to(ROOT / "docs") and not ref.startswith(("scripts/", "bench/")):
+                continue
+            if not (ROOT / ref).exists():
+                missing.append(f"{path.relative_to(ROOT)}: {ref}")
+    assert not missing, f"references to files that do not exist: {missing}"
+
+
+def test_the_reference_pattern_finds_paths() -> None:
+    text = "see docs/snn.md, `scripts/train_segments.sh OUT` and bench/snn_step.py."
+    assert [m.group(1) for m in REFERENCE.finditer(text)] == [
+        "docs/snn.md",
+        "scripts/train_segments.sh",
+        "bench/snn_step.py",
+    ]
+
+
+def test_every_docs_page_is_in_the_navigation_and_every_api_module_exists() -> None:
+    config = yaml.safe_load((ROOT / "mkdocs.yml").read_text())
+
+    def pages(node: object) -> list[str]:
+        if isinstance(node, str):
+            return [node]
+        if isinstance(node, list):
+            return [p for item in node for p in pages(item)]
+        if isinstance(node, dict):
+            return [p for value in node.values() for p in pages(value)]
+        return []
+
+    nav = set(pages(config["nav"]))
+    on_disk = {str(p.relative_to(ROOT / "docs")) for p in (ROOT / "docs").rglob("*.md")}
+    assert nav == on_disk
+    for page in (ROOT / "docs" / "api").glob("*.md"):
+        for module in re.findall(r"^::: ([\w.]+)", page.read_text(), re.MULTILINE):
+            parts = module.split(".")
+            as_file = ROOT.joinpath(*parts).with_suffix(".py")
+            as_package = ROOT.joinpath(*parts, "__init__.py")
+            assert as_file.exists() or as_package.exists(), f"{page.name}: {module}"
+
+
+def test_package_metadata_license_and_citation_agree() -> None:
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert project["license"] == "MIT"
+    assert (ROOT / "LICENSE").read_text().startswith("MIT License")
+    assert "dask[distributed]>=2024.1" not in project["dependencies"]
+    assert any(
+        d.startswith("dask[distributed]") for d in project["optional-dependencies"]["distributed"]
+    )
+    cff = yaml.safe_load((ROOT / "CITATION.cff").read_text())
+    assert cff["cff-version"] == "1.2.0"
+    assert str(cff["version"]) == project["version"]
+    paper = cff["preferred-citation"]
+    assert paper["doi"] == "10.1109/ICRA40945.2020.9197133"
+    assert [a["family-names"] for a in paper["authors"]] == [
+        "Gehrig", "Shrestha", "Mouritzen", "Scaramuzza"
+    ]  # fmt: skip
+    changelog = (ROOT / "CHANGELOG.md").read_text()
+    assert "## [Unreleased]" in changelog
+    assert f"## [{project['version']}]" in changelog
+
+
+def test_scheduler_without_dask_names_the_extra(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from spikegyro.sim.dataset import generate_dataset
+
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed -> ImportError
+    with pytest.raises(InputError, match=r"pip install 'spikegyro\[distributed\]'"):
+        generate_dataset(tmp_path / "data", 3, scheduler="tcp://127.0.0.1:8786")
