@@ -119,7 +119,7 @@ class _Element:
 def _pool_forward(
     offsets: np.ndarray, index: np.ndarray, pooling: np.ndarray, channels: int
 ) -> np.ndarray:
-    """(channels·cells, T) pooled spikes: feature c·cells + cell = Σ_pixel pooling[cell, pixel]·s."""
+    """(channels·cells, T) pooled spikes: feature c·cells + cell sums pooling[cell, px]·s[px, c]."""
     steps = offsets.size - 1
     cells = pooling.shape[0]
     out = np.zeros((channels * cells, steps), pooling.dtype)

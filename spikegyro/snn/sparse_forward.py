@@ -218,7 +218,8 @@ def layer_forward(
             if live[pixel] < t:
                 continue
             lo, hi = pixel * cout, (pixel + 1) * cout
-            a, d, z, old, ref = state_a[lo:hi], state_d[lo:hi], z_now[lo:hi], z_old[lo:hi], refractory[lo:hi]
+            a, d, z = state_a[lo:hi], state_d[lo:hi], z_now[lo:hi]
+            old, ref = z_old[lo:hi], refractory[lo:hi]
             for o in range(cout):  # a = p·A[t−1], d = p·(D[t−1] + A[t−1]) from the last step
                 dd = d[o] + tail_d * old[o]
                 aa = a[o] + z[o] + tail_a * old[o]

@@ -33,7 +33,10 @@ def _json_option(text: str | None, name: str) -> dict[str, Any] | None:
 
 def throughput_line(result: TrainResult) -> str:
     """The run's samples/s against the bare step's, as ``train`` prints them."""
-    line = f"throughput: {result.samples_per_s:.1f} samples/s ({result.data_path} data path)"
+    line = (
+        f"throughput: {result.samples_per_s:.1f} samples/s ({result.data_path} data path, "
+        f"{result.compute} compute)"
+    )
     if result.bare is not None:
         bare = result.bare
         line += (
@@ -107,6 +110,14 @@ def train_command(
     amp: str = typer.Option(
         None, help="off, or bf16: the ANNs' forward passes in bfloat16 autocast (GPU speed)."
     ),
+    compute: str = typer.Option(
+        None, help="SNNs: sparse (event-driven CPU engine), dense (torch), or auto (sparse on a "
+        "CPU in one process)."
+    ),
+    surrogate_cut: float = typer.Option(
+        None, help="SNNs: zero the surrogate gradient below this share of its peak (0 = "
+        "unbounded; default 0.05 sparse, 0 dense)."
+    ),
     bare_steps: int = typer.Option(
         None, help="Bare training steps timed at the end, to compare with the run (0 = off)."
     ),
@@ -153,6 +164,8 @@ def train_command(
         "device": device,
         "data_path": data_path,
         "amp": amp,
+        "compute": compute,
+        "surrogate_cut": surrogate_cut,
         "bare_steps": bare_steps,
         "sim": _json_option(sim, "sim"),
         "tensorboard": tensorboard,

@@ -76,6 +76,7 @@ class TrainResult:
     bare: BareStep | None = None  # the bare step of one process's share of the batch
     data_path: str = "dense"
     interrupted: bool = False  # stopped by Ctrl-C (see spikegyro.train.interrupt)
+    compute: str = "dense"  # how the training step ran: "sparse" (event engine) or "dense"
 
 
 # ------------------------------------------------------------------------------ components
@@ -203,6 +204,35 @@ def validate(
     return validation_metrics(prediction, truth, config.loss_start_step)
 
 
+def resolve_compute(config: TrainConfig, ctx: distributed.DistContext) -> str:
+    """"sparse" or "dense": how this run computes its training steps (see ``TrainConfig``)."""
+    if config.input != "spikes":
+        return "dense"
+    if config.compute == "sparse" and ctx.device.type != "cpu":
+        raise InputError(
+            f"--compute sparse on {ctx.device}: the event-driven engine runs on the CPU; use "
+            "--compute dense on a GPU."
+        )
+    if config.compute == "sparse" and ctx.distributed:
+        raise InputError(
+            "--compute sparse under torchrun: the event-driven engine trains in one process "
+            "(its threads share the batch); run without torchrun or use --compute dense."
+        )
+    if config.compute == "auto":
+        return "sparse" if ctx.device.type == "cpu" and not ctx.distributed else "dense"
+    return config.compute
+
+
+def configure_compute(model: nn.Module, config: TrainConfig, ctx: distributed.DistContext) -> str:
+    """Give an SNN the surrogate cut and engine of the run; returns "sparse" or "dense"."""
+    compute = resolve_compute(config, ctx)
+    if config.input == "spikes":
+        model.set_surrogate_cut(config.resolved_cut(compute))
+        threads = config.threads or torch.get_num_threads()
+        model.use_event_engine(threads if compute == "sparse" else None)
+    return compute
+
+
 def seed_everything(seed: int) -> None:
     """Seed the global generators (model init); samples use their own per-index generators."""
     random.seed(seed)
@@ -269,6 +299,7 @@ def _train(
     model = build_model(config.model, **kwargs)
     before = load_init(model, config) if config.init and not resume else {}
     model = model.to(ctx.device)
+    compute = configure_compute(model, config, ctx)
     trained = model.freeze(config.freeze) if config.freeze else list(model.parameters())
     optimizer = torch.optim.Adam(trained, lr=config.lr)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: lr_factor(s, config))
@@ -381,7 +412,7 @@ def _train(
         files.write_throughput(clock.samples_per_s, bare, data_path, ctx.world_size)
     return TrainResult(files.dir, step, elapsed, last_loss, best, val, stopped_early,
                        clock.samples_per_s, bare, data_path,
-                       interrupt.requested and stopped_early)  # fmt: skip
+                       interrupt.requested and stopped_early, compute)  # fmt: skip
 
 
 def _checkpoint(

@@ -16,9 +16,15 @@ from typing import Any
 from spikegyro.checks import check_device
 from spikegyro.errors import InputError
 from spikegyro.models.snn6 import SNN6_LAYERS
+from spikegyro.snn.functional import TAU_RHO
 from spikegyro.train.data import DATA_PATHS
 
 AMP_MODES = ("off", "bf16")
+COMPUTE_MODES = ("auto", "sparse", "dense")
+SPARSE_DEFAULT_CUT = 0.05
+"""Surrogate cut of the sparse engine by default: ρ kept where |u − θ| <= 0.9θ."""
+SPARSE_MIN_CUT = math.exp(-1.0 / TAU_RHO)
+"""Below this cut the surrogate's support reaches u = 0, where every neuron at rest sits."""
 MODEL_INPUTS = {"snn6": "spikes", "snn6-grid": "spikes", "ann6": "voxel", "resnet50": "voxel"}
 
 
@@ -71,6 +77,12 @@ class TrainConfig:
         data_path: how training batches reach the device: "events" (event lists, binned on the
             device), "dense" (input tensors encoded in the DataLoader workers) or "auto"
             (events on CUDA, dense on the CPU).
+        compute: how the SNNs compute a training step: "sparse" (the event-driven CPU engine,
+            :mod:`spikegyro.snn.sparse`), "dense" (the batch torch path) or "auto" (sparse on a
+            CPU in one process, dense on CUDA or under torchrun). The ANNs are always dense.
+        surrogate_cut: bound of the SNN's surrogate gradient, as a share of its peak (0 =
+            SLAYER's unbounded pdf); None: 0.05 with the sparse engine (which needs a cut above
+            exp(−1/0.3) ≈ 0.036), 0 with the dense path. Equal cuts give equal gradients.
         amp: "off", or "bf16" to run the ANNs' forward passes in bfloat16 autocast (weights,
             optimizer and loss stay float32; no loss scaling is needed with bfloat16). The SNN
             stays in float32: its threshold crossings are exact comparisons.
@@ -121,6 +133,8 @@ class TrainConfig:
     device: str = "auto"
     data_path: str = "auto"
     amp: str = "off"
+    compute: str = "auto"
+    surrogate_cut: float | None = None
     bare_steps: int = 10
     sim: dict[str, Any] | None = None
     tensorboard: bool = False
@@ -155,6 +169,7 @@ class TrainConfig:
                 f"--freeze {self.freeze}: SNN-6 has {len(SNN6_LAYERS)} spiking layers; freeze 0 "
                 f"to {len(SNN6_LAYERS)} of them."
             )
+        self._check_compute()
         if self.bare_steps < 0:
             raise InputError(f"--bare-steps {self.bare_steps}: must be 0 (off) or positive.")
         if self.lr_schedule not in ("constant", "cosine"):
@@ -187,6 +202,34 @@ class TrainConfig:
 
         check_model_kwargs(self.model, dict(self.model_kwargs or {}))
         object.__setattr__(self, "sensor", tuple(int(v) for v in self.sensor))
+
+    def _check_compute(self) -> None:
+        if self.compute not in COMPUTE_MODES:
+            raise InputError(f"--compute {self.compute}: choose one of {', '.join(COMPUTE_MODES)}.")
+        if self.compute == "sparse" and self.input != "spikes":
+            raise InputError(
+                f"--compute sparse with --model {self.model}: the event-driven engine trains the "
+                "SNNs; the ANNs use --compute dense."
+            )
+        if self.compute == "sparse" and self.device.startswith("cuda"):
+            raise InputError(
+                f"--compute sparse with --device {self.device}: the event-driven engine runs on "
+                "the CPU; use --compute dense on a GPU."
+            )
+        cut = self.surrogate_cut
+        if cut is not None and not 0.0 <= cut < 1.0:
+            raise InputError(f"--surrogate-cut {cut}: a share of the peak, must lie in [0, 1).")
+        if self.compute == "sparse" and cut is not None and cut <= SPARSE_MIN_CUT:
+            raise InputError(
+                f"--surrogate-cut {cut} with --compute sparse: the event-driven engine needs a "
+                f"cut above {SPARSE_MIN_CUT:.4f} (a support that excludes rest; default 0.05)."
+            )
+
+    def resolved_cut(self, compute: str) -> float:
+        """The surrogate cut a run with ``compute`` ("sparse" or "dense") uses."""
+        if self.surrogate_cut is not None:
+            return self.surrogate_cut
+        return SPARSE_DEFAULT_CUT if compute == "sparse" else 0.0
 
     def _check_ranges(self) -> None:
         if not (self.lr > 0 and math.isfinite(self.lr)):
@@ -242,7 +285,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     },
     # The paper's schedule for real cameras: online data from the davis240c sensor preset (wide
     # thresholds, noise, hot pixels, bandwidth, lens; sparse and office scenes) and event-density
-    # augmentation, since a real DAVIS240C gives 0.2 to 5.6 M events/s (docs: sensor notes).
+    # augmentation, since a real DAVIS240C gives 0.2 to 5.6 M events/s (docs/simulator.md).
     "sim2real": {
         "online": True,
         "sim": {"sensor": "davis240c"},
