@@ -129,3 +129,4 @@ def test_scheduler_without_dask_names_the_extra(
     monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed -> ImportError
     with pytest.raises(InputError, match=r"pip install 'spikegyro\[distributed\]'"):
         generate_dataset(tmp_path / "data", 3, scheduler="tcp://127.0.0.1:8786")
+    assert not (tmp_path / "data").exists()  # refused before anything is written

@@ -497,6 +497,11 @@ def generate_dataset(
         "(rad/s), ang_ts (us); attributes describe the sensor and the sequence",
         "complete": False,
     }
+    run = (  # first: a missing Dask stops the run before anything is written
+        _dask_runner(config, seed, compression, scheduler)
+        if scheduler
+        else _local_runner(config, seed, compression, workers)
+    )
     _check_resume(out, meta)
     out.mkdir(parents=True, exist_ok=True)
     _write_meta(out, meta)
@@ -509,11 +514,6 @@ def generate_dataset(
                 summaries.append(_summary_from_file(path))
             else:
                 tasks.append((split, index))
-    run = (
-        _dask_runner(config, seed, compression, scheduler)
-        if scheduler
-        else _local_runner(config, seed, compression, workers)
-    )
     done = len(summaries)
     for split, index, (data, summary) in run(tasks):
         with atomic_path(sequence_path(out, split, index)) as tmp:
