@@ -113,6 +113,8 @@ class _Element:
     inputs: list[Lists] = field(default_factory=list)  # the input of each layer
     active: list[tuple[np.ndarray, ...]] = field(default_factory=list)
     pooled: np.ndarray | None = None  # (features, T)
+    forward_s: list[float] = field(default_factory=list)  # per layer
+    backward_s: list[float] = field(default_factory=list)  # per layer, last layer first
 
 
 @numba.njit(cache=True, nogil=True)
@@ -164,6 +166,8 @@ class SparseTiming:
 
     forward_s: float = 0.0
     backward_s: float = 0.0
+    layer_forward_s: list[float] = field(default_factory=list)  # CPU s per layer, all threads
+    layer_backward_s: list[float] = field(default_factory=list)
     inputs: int = 0
     spikes: list[int] = field(default_factory=list)
     active: list[int] = field(default_factory=list)
@@ -206,6 +210,7 @@ class EventDrivenStack:
         x_np = x.detach().cpu().numpy()
         plan.elements = self._map(lambda b: plan.forward_element(x_np[b]), x.shape[0])
         self.timing = SparseTiming(forward_s=time.perf_counter() - start)
+        self.timing.layer_forward_s = np.sum([e.forward_s for e in plan.elements], axis=0).tolist()
         self.timing.inputs = sum(int(e.inputs[0][1].size) for e in plan.elements)
         self.timing.spikes = [
             sum(int(e.inputs[i][1].size) for e in plan.elements) for i in range(1, len(self.convs))
@@ -223,6 +228,8 @@ class EventDrivenStack:
             lambda b: plan.backward_element(plan.elements[b], grad_np[b]), len(plan.elements)
         )
         self.timing.backward_s = time.perf_counter() - start
+        per_layer = np.sum([e.backward_s[::-1] for e in plan.elements], axis=0)
+        self.timing.layer_backward_s = [0.0] * plan.first + per_layer.tolist()
         grads: list[torch.Tensor | None] = [None] * plan.first
         for i, conv in enumerate(self.convs[plan.first :]):
             total = per_element[0][i].copy()
@@ -294,7 +301,9 @@ class _Plan:
         element = _Element()
         for i, layer in enumerate(self.layers):
             element.inputs.append(spikes)
+            start = time.perf_counter()
             spikes, active = layer.forward(spikes, record=i >= self.first)
+            element.forward_s.append(time.perf_counter() - start)
             element.active.append(active)
         element.pooled = _pool_forward(spikes[0], spikes[1], self.pooling, self.channels)
         return element
@@ -306,6 +315,7 @@ class _Plan:
         grads = []
         for i in range(len(self.layers) - 1, self.first - 1, -1):
             layer = self.layers[i]
+            start = time.perf_counter()
             act_off, act_idx, act_u = element.active[i]
             below = element.active[i - 1][:2] if i > self.first else (act_off[:1], act_idx[:0])
             grad_w, grad_s = layer_backward(
@@ -314,4 +324,5 @@ class _Plan:
                 layer.cols, below, i > self.first,
             )  # fmt: skip
             grads.append(grad_w)
+            element.backward_s.append(time.perf_counter() - start)
         return grads[::-1]
