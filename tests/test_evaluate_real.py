@@ -259,7 +259,7 @@ def test_e2e_recovers_the_clock_offset_and_applies_the_rotation(real_like):
 
 
 def _summary(pred: np.ndarray, gt: np.ndarray) -> dict:
-    """The metrics, computed here from their definitions (DESIGN.md), deg/s."""
+    """The metrics, computed here from their definitions (docs/evaluation.md), deg/s."""
     err = np.degrees(np.linalg.norm(pred - gt, axis=1))
     speed = np.degrees(np.linalg.norm(gt, axis=1))
     keep = speed >= 1.0

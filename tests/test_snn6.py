@@ -21,7 +21,7 @@ def _spikes(shape, density, seed=0):
 
 
 def _reference_forward(model: SNN6, x: torch.Tensor) -> torch.Tensor:
-    """DESIGN.md's equations one step at a time, in the official order conv(psp(s)), float64."""
+    """docs/snn.md's equations one step at a time, in the official order conv(psp(s)), float64."""
     steps = x.shape[-1]
     s_in = [x[..., t].double() for t in range(steps)]
     for conv, spec in zip(model.convs, SNN6_LAYERS, strict=True):

@@ -17,7 +17,7 @@ def export_nir_command(
 ) -> None:
     """Write SNN-6 as a NIR graph (CubaLIF neurons; needs the 'nir' extra).
 
-    The refractory kernel and the 1 ms sampling are not exact in NIR: see docs/notes/nir.md.
+    The refractory kernel and the 1 ms sampling are not exact in NIR: see docs/nir.md.
     """
     check_output_file(out, "OUT")
     path = export_nir(checkpoint, out)

@@ -205,7 +205,7 @@ def snn6_grid(
 ) -> SNN6:
     """SNN-6 whose readout pools layer 5 per cell of a coarse grid instead of globally.
 
-    A test of the hypothesis in DESIGN.md ("Why roll is hard"): GASP hides where a feature
+    A test of the hypothesis in docs/evaluation.md ("Real recordings"): GASP hides where a feature
     fired, and roll's flow field depends on position. At 240x180, layer 5 is 12x8, so the
     default 2x3 grid has cells of 4x4 neurons.
     """

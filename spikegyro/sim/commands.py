@@ -96,7 +96,7 @@ def simulate_dataset(
         "--sensor",
         help=f"Sensor preset: {', '.join(SENSOR_PRESETS)}. 'ideal' is the paper's simulator "
         "(the options below); 'davis240c' draws thresholds, noise, hot pixels, bandwidth, lens "
-        "and the scene mix per sequence (docs/notes/sensor.md) and ignores the threshold, "
+        "and the scene mix per sequence (docs/simulator.md) and ignores the threshold, "
         "noise, --procedural-fraction and --detail options.",
     ),
     scene_mix: str = typer.Option(

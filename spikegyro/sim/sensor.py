@@ -13,7 +13,7 @@ sequence, which :func:`spikegyro.sim.esim.simulate` applies:
   Following their recipe rather than their numbers, the mean threshold here is log-uniform in
   [0.1, 0.6] (0.1 is about the DAVIS240C's minimum contrast sensitivity, Brandli 2014): with our
   scenes and rotations that spreads 100 ms windows over the span of real DAVIS240C rotation
-  recordings (0.2 to 5.6 M events/s in the Event Camera Dataset; docs/notes/sensor.md has the
+  recordings (0.2 to 5.6 M events/s in the Event Camera Dataset; docs/simulator.md has the
   measurement), where U(0.2, 1.5) left the median window at 0.1 M events/s. ON/OFF differ by a
   factor C_on/C_off log-uniform in [0.8, 1.8]: real ON and OFF thresholds are set by separate
   biases, and real recordings are OFF-heavy (the four ECD rotation windows have 42 % ON events,
