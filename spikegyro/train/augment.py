@@ -26,11 +26,11 @@ Aperture. Roll moves a pixel at radius r from the optical axis by ω·r, so its 
 the periphery: with only the events of the central quarter of the image, the shipped SNN-6 knows
 nothing about roll (``scripts/analysis/roll_probe.py``), and real sparse scenes such as the
 Event Camera Dataset's ``shapes`` put half their events there. :func:`keep_centre` keeps the
-events inside a centred box, as a camera that sees texture only through an aperture would record; the motion and
-so the labels are unchanged. The box is symmetric about the sensor centre, so it commutes with
-both mirrors and with time inversion. Thinning keeps events by their position in the stream, so
-it commutes with the mirrors (which keep the order) and, with the mask reversed, with time
-inversion (which reverses it).
+events inside a centred box, as a camera that sees texture only through an aperture would record;
+the motion and so the labels are unchanged. The box is symmetric about the sensor centre, so it
+commutes with both mirrors and with time inversion. Thinning keeps events by their position in
+the stream, so it commutes with the mirrors (which keep the order) and, with the mask reversed,
+with time inversion (which reverses it).
 """
 
 from __future__ import annotations
