@@ -55,13 +55,14 @@ def model_names() -> list[str]:
     return sorted(_REGISTRY)
 
 
-def check_model_kwargs(name: str, kwargs: dict[str, Any]) -> None:
-    """Raise :class:`InputError` unless model ``name`` exists and takes ``kwargs``."""
+def check_model_kwargs(name: str, kwargs: dict[str, Any], partial: bool = False) -> None:
+    """Raise :class:`InputError` unless model ``name`` exists and takes ``kwargs`` (all its
+    required arguments among them, unless ``partial``)."""
     if name not in _REGISTRY:
         raise InputError(f"unknown model '{name}'; choose one of {', '.join(model_names())}.")
     signature = inspect.signature(_REGISTRY[name])
     try:
-        signature.bind(**kwargs)
+        (signature.bind_partial if partial else signature.bind)(**kwargs)
     except TypeError as exc:
         accepted = ", ".join(signature.parameters) or "none"
         raise InputError(

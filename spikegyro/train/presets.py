@@ -200,7 +200,8 @@ class TrainConfig:
         check_device(self.device)
         from spikegyro.models.registry import check_model_kwargs
 
-        check_model_kwargs(self.model, dict(self.model_kwargs or {}))
+        # the trainer adds the input channels and outputs, so only what is given is bound here
+        check_model_kwargs(self.model, dict(self.model_kwargs or {}), partial=True)
         object.__setattr__(self, "sensor", tuple(int(v) for v in self.sensor))
 
     def _check_compute(self) -> None:
@@ -232,8 +233,8 @@ class TrainConfig:
         return SPARSE_DEFAULT_CUT if compute == "sparse" else 0.0
 
     def _check_ranges(self) -> None:
-        if not (self.lr > 0 and math.isfinite(self.lr)):
-            raise InputError(f"--lr {self.lr}: the learning rate must be positive.")
+        if not (self.lr >= 0 and math.isfinite(self.lr)):
+            raise InputError(f"--lr {self.lr}: the learning rate must be a number >= 0.")
         for name in ("hflip", "vflip", "time_reverse", "lr_min_factor"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise InputError(
