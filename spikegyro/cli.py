@@ -36,6 +36,7 @@ _COMMANDS: dict[str, str] = {
     "relay-log": "spikegyro.train.relay:relay_log_command",
     "predict": "spikegyro.stream.commands:predict",
     "baseline": "spikegyro.baselines.commands:app",
+    "calibrate-imu": "spikegyro.baselines.commands:calibrate_imu",
 }
 """Command name -> ``module:attribute`` (a command function or a Typer sub-app). A stage's module
 is imported only when its command runs or ``--help`` lists it, so ``spikegyro predict`` does not
@@ -162,13 +163,15 @@ def run(argv: Sequence[str] | None = None) -> int:
 
 
 def main() -> None:
-    """Entry point: exit with :func:`run`'s code."""
+    """Entry point: exit with :func:`run`'s code (return normally on success, so a caller in
+    Python goes on)."""
     try:
         code = run()
     except KeyboardInterrupt:  # before or after a command, outside Typer
         typer.echo("interrupted (Ctrl-C); stopped.", err=True)
         code = EXIT_INTERRUPTED
-    sys.exit(code)
+    if code:
+        sys.exit(code)
 
 
 if __name__ == "__main__":

@@ -71,6 +71,9 @@ class CMaxConfig:
             seconds of event time (0: only at the first), the tracked estimate competing.
         min_motion_px: estimates moving edges by less than this over their window are flagged
             ill-posed (too little motion to tell from none).
+        gain_drop: when an estimate's contrast gain above 1 falls below this share of its
+            recent best, or it is ill-posed, the next search comes after a fifth of
+            ``search_every_s``.
 
     One window (:func:`estimate_window`, :func:`search`):
         max_events: windows with more events are randomly subsampled to this many (speed).
@@ -96,6 +99,7 @@ class CMaxConfig:
     track_xtol_px: float = 0.05
     search_every_s: float = 1.0
     min_motion_px: float = 1.0
+    gain_drop: float = 0.6
     max_events: int = 30_000
     min_events: int = 100
     hot_pixel_factor: float = 5.0

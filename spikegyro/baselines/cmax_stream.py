@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -84,7 +85,8 @@ class CMaxEstimator:
         self._omega: np.ndarray | None = None
         self._last_search_us: int | None = None
         self._hessian: np.ndarray | None = None
-        self._flags = 0
+        self._doubt = False
+        self._best_gain = 0.0
         self._last_t: int | None = None
         self._buffer = EventBuffer()
         self._hot: HotPixels | None = None
@@ -190,8 +192,8 @@ class CMaxEstimator:
 
     def _window(self, t_us: int) -> tuple[np.ndarray, float, int] | None:
         """Buffer indices of the (thinned) events of the window ending at ``t_us``, its span
-        (µs) and its number of events (hot pixels left out); None when fewer than
-        ``min_events`` remain."""
+        (µs) and its number of events (hot pixels included: the window is sized on them);
+        None when fewer than ``min_events`` remain once hot pixels are left out."""
         buf, config = self._buffer, self.config
         t = buf.times()
         i1 = int(np.searchsorted(t, t_us, side="right"))
@@ -208,7 +210,7 @@ class CMaxEstimator:
             # Evenly thinned: the same share of every part of the window, at no random cost.
             index = index[np.linspace(0, len(index) - 1, config.track_events).astype(np.intp)]
         span = float(t_us - buf.t[index[0]])
-        return index, span, count
+        return index, span, i1 - i0
 
     def _estimate(self, t_us: int) -> tuple | None:
         """One estimate at ``t_us`` (the row of an ``Estimates``), or None without events."""
@@ -216,6 +218,10 @@ class CMaxEstimator:
         if window is None:
             return None
         index, span, count = window
+        policy = self.config.window
+        adaptive = policy.fixed_ms <= 0 and policy.fixed_events <= 0
+        if self._omega is None and adaptive and count < policy.min_events:
+            return None  # the first estimate waits for a well-posed window: tracking starts there
         buf, config = self._buffer, self.config
         dt = (t_us - buf.t[index]) * 1e-6
         width, height = self._sensor
@@ -224,8 +230,9 @@ class CMaxEstimator:
         )
         every = config.search_every_s * 1e6
         since = math.inf if self._last_search_us is None else t_us - self._last_search_us
-        # An ill-posed estimate may have lost the motion: search again sooner.
-        if self._omega is None or (every > 0 and since >= every * (0.25 if self._flags else 1)):
+        # An ill-posed estimate, or a contrast gain fallen well below its recent best, may mean
+        # that tracking has lost the motion or slid to a worse local maximum: search sooner.
+        if self._omega is None or (every > 0 and since >= every * (0.2 if self._doubt else 1)):
             found = search(problem, config, self._omega, grid=True, rng=self._rng)
             self._last_search_us = t_us
             self.searches += 1
@@ -243,13 +250,17 @@ class CMaxEstimator:
         self._hessian = found.inv_hessian
         flat = problem.contrast(np.zeros(3), 1, config.sigma_px)[0]
         gain = found.contrast / flat if flat > 0 else math.nan
+        if math.isfinite(gain):
+            # Best recent gain above 1, forgetting over about 50 estimates.
+            self._best_gain = max(gain - 1.0, self._best_gain * 0.98)
+        gain_dropped = not gain - 1.0 >= config.gain_drop * self._best_gain
         flags = 0
         if count < config.window.min_events and config.window.fixed_events <= 0:
             flags |= ILL_FEW_EVENTS
         moved = pixel_speed(omega, float(self._intrinsics[0]), self._radius) * span * 1e-6
         if moved < config.min_motion_px:
             flags |= ILL_LITTLE_MOTION
-        self._flags = flags
+        self._doubt = bool(flags) or gain_dropped
         delay = float(dt.mean()) * 1e6
         return t_us, omega, count, span, delay, gain, flags
 
@@ -286,3 +297,23 @@ def camera_for_file(
         f"{camera.cy:g}), no distortion. Angular speeds scale with the focal length: pass "
         "--intrinsics fx fy cx cy or --calib FILE."
     )
+
+
+def cmax_estimator_for_file(
+    path: str | os.PathLike,
+    calibration: Calibration | None = None,
+    sensor: tuple[int, int] | None = None,
+    rate_hz: float | None = None,
+    window_ms: float | None = None,
+    config: CMaxConfig | None = None,
+) -> tuple[CMaxEstimator, str]:
+    """A :class:`CMaxEstimator` for an event file (intrinsics by :func:`camera_for_file`),
+    with ``rate_hz`` (None: the config's) and a fixed ``window_ms`` (None: adaptive), and the
+    line saying which intrinsics it uses."""
+    config = config or CMaxConfig()
+    if rate_hz is not None:
+        config = replace(config, rate_hz=float(rate_hz))
+    if window_ms is not None:
+        config = replace(config, window=replace(config.window, fixed_ms=float(window_ms)))
+    camera, note = camera_for_file(path, calibration, sensor)
+    return CMaxEstimator(camera, config), note

@@ -27,7 +27,13 @@ import numpy as np
 from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration, PinholeCamera
 from spikegyro.events.core import EventArray
-from spikegyro.events.io import detect_format, iter_event_chunks, open_hdf5, read_gyro
+from spikegyro.events.io import (
+    detect_format,
+    iter_event_chunks,
+    open_hdf5,
+    read_gyro,
+    read_hdf5_attrs,
+)
 from spikegyro.stream.estimator import (
     ILL_FEW_EVENTS,
     ILL_LITTLE_MOTION,
@@ -574,3 +580,59 @@ def plot_against_gyro(path: Path, table: np.ndarray, t0_us: int, label: str = "S
         fig.savefig(tmp, dpi=120, format="png")
     plt.close(fig)
     return path
+
+
+SNN_REAL_DATA_NOTE = (
+    "note: on real cameras the shipped SNN-6 is not yet accurate (mean error 31 deg/s on a "
+    "steady 5 deg/s pan, translBoxes; roll of the wrong sign on ECD shapes; see BENCHMARKS.md): "
+    "use --method cmax for real recordings."
+)
+"""The line ``predict`` prints when the network runs on a recording that is not simulated."""
+
+
+def is_simulated(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a sequence written by spikegyro's simulator (its ``generator``
+    attribute says so); real camera files and text recordings are not."""
+    path = Path(path)
+    try:
+        if detect_format(path) != "hdf5":
+            return False
+        return str(read_hdf5_attrs(path).get("generator", "")).startswith("spikegyro")
+    except (OSError, InputError):
+        return False
+
+
+def summary_lines(result: StreamResult, out: str | os.PathLike) -> list[str]:
+    """What ``predict`` prints at the end: output, speed, latency, ill-posed estimates, errors."""
+    seconds = result.steps * BIN_US / 1e6
+    lines = [
+        f"{result.estimates:,} estimates ({result.rate_hz:.0f} per second, {seconds:.3f} s, "
+        f"{result.events:,} events) -> {out}; {result.wall_s:.1f} s wall, "
+        f"{result.realtime_factor:.1f}× real time ({result.cpu_realtime_factor:.1f}× per "
+        "CPU-second)",
+        f"engine: {result.engine}",
+    ]
+    if math.isfinite(result.latency_ms):
+        lines.append(
+            f"latency: each estimate is the mean rate over its window, whose events lie "
+            f"{result.latency_ms:.1f} ms (median) before the estimate's time"
+        )
+    few, little = result.ill_posed
+    if few or little:
+        lines.append(
+            f"warning: {few:,} of {result.estimates:,} estimates had fewer events than asked "
+            f"for and {little:,} moved edges by less than a pixel (too little motion to tell "
+            "from none): see the ill_posed column; their ω is unreliable."
+        )
+    if result.stats:
+        s = result.stats
+        lines.append(
+            f"vs gyro (from {WARMUP_STEPS} ms on, {s['samples']:,} estimates): mean absolute "
+            f"error tilt {s['mae_x_deg_s']:.2f}, pan {s['mae_y_deg_s']:.2f}, roll "
+            f"{s['mae_z_deg_s']:.2f} deg/s; mean error {s['mean_error_deg_s']:.1f} deg/s, RMSE "
+            f"{s['rmse_deg_s']:.1f} deg/s (x {s['rmse_x_deg_s']:.1f}, y {s['rmse_y_deg_s']:.1f}, "
+            f"z {s['rmse_z_deg_s']:.1f}), median relative error {s['median_relative_error']:.3f}"
+        )
+    if result.plot is not None:
+        lines.append(f"plot -> {result.plot}")
+    return lines
