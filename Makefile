@@ -45,7 +45,7 @@ demo-finetune: $(STAMP)
 # The CPU benchmarks that run on their own; gpu_step.py (CUDA), nir_snntorch.py and
 # the analysis scripts in scripts/analysis/ (datasets to pass) are run with the commands in
 # BENCHMARKS.md and docs/analysis.md.
-CPU_BENCHES := simulator snn_step streaming cmax formats
+CPU_BENCHES := simulator snn_step streaming cmax formats train_step
 
 bench: $(STAMP)
 	$(BIN)/python -m pip install -q -e ".[test,bench]"

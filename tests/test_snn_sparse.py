@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 
 from spikegyro.models.registry import PRETRAINED_SNN6, load_checkpoint
-from spikegyro.models.snn6 import SNN6, READOUT
+from spikegyro.models.snn6 import READOUT, SNN6
 from spikegyro.snn.functional import fire, psp, surrogate_gradient, surrogate_half_width
 from spikegyro.snn.layers import GASP, SRMConv, SRMDense, SRMParams
 from spikegyro.snn.sparse import EventDrivenStack
@@ -27,7 +27,8 @@ def gradients(model: torch.nn.Module, x: torch.Tensor, y: torch.Tensor, start: i
     model.zero_grad(set_to_none=True)
     loss = angular_velocity_loss(model(x), y, start)
     loss.backward()
-    return float(loss.detach()), {n: p.grad.clone() for n, p in model.named_parameters() if p.requires_grad}
+    grads = {n: p.grad.clone() for n, p in model.named_parameters() if p.requires_grad}
+    return float(loss.detach()), grads
 
 
 def exact_snn6(**kwargs) -> SNN6:

@@ -1,0 +1,207 @@
+"""SNN-6 training step on the CPU: the dense torch path against the event-driven engine.
+
+One step = forward + backward + Adam update of SNN-6 (240x180, T = 100 ms, batch 8, the shipped
+weights, surrogate cut 0.05 on both paths so that their gradients agree) on realistic windows:
+half simulated with the ideal sensor, half with the ``davis240c`` preset (seeded, the same every
+run). Both paths run in one process, their steps interleaved (so both see the same background
+load), on 1 and 2 threads; the time is the median of ``--repeats`` steps after one warm-up step
+each, divided by the batch. Peak memory: one step of each path in its own subprocess (peak
+resident set, VmHWM reset just before the step; growth = peak minus the level before it).
+
+Gradients: on the same batch, the largest relative norm ‖g_sparse − g_dense‖/‖g_dense‖ over the
+parameter tensors (float32), and the spikes that differ between the two forward passes (a
+potential within float32 rounding of θ). Profile: where the engine's time goes per layer.
+
+    .venv/bin/python bench/train_step.py [--repeats 3] [--threads 1 2] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from spikegyro.models.registry import PRETRAINED_SNN6, load_checkpoint
+from spikegyro.models.snn6 import SNN6
+from spikegyro.sim.dataset import SimConfig, simulate_sequence
+from spikegyro.snn.sparse import _Plan
+from spikegyro.train.data import encode_target, encode_window, sequence_windows
+from spikegyro.train.loss import angular_velocity_loss
+from spikegyro.train.throughput import train_step
+
+BATCH = 8
+STEPS = 100
+START = 50
+CUT = 0.05
+SPEC = {"representation": "spikes", "sensor": [240, 180], "scale": 1.0, "window_ms": STEPS}
+
+
+def _status_mib(field: str) -> float:
+    with open("/proc/self/status") as f:
+        line = next(line for line in f if line.startswith(field + ":"))
+    return int(line.split()[1]) / 1024.0
+
+
+def windows(seed: int = 7) -> tuple[torch.Tensor, torch.Tensor]:
+    """BATCH windows of 100 ms at 240x180: half ideal, half davis240c simulated sequences."""
+    picked = []
+    for sensor in ("ideal", "davis240c"):
+        config = SimConfig(duration_ms=STEPS, sensor=sensor)
+        for i in range(BATCH // 2):
+            recording = simulate_sequence(config, i, seed=seed)
+            picked.append(sequence_windows(recording, STEPS, f"{sensor}:{i}")[0])
+    x = torch.stack([encode_window(w, SPEC) for w in picked])
+    y = torch.stack([encode_target(w, SPEC) for w in picked])
+    return x, y
+
+
+def model(compute: str, threads: int) -> SNN6:
+    net, _ = load_checkpoint(PRETRAINED_SNN6)
+    net.train()
+    net.set_surrogate_cut(CUT)
+    net.use_event_engine(threads if compute == "sparse" else None)
+    return net
+
+
+def make_step(compute: str, threads: int, x, y) -> tuple[Callable[[], None], SNN6]:
+    net = model(compute, threads)
+    optimizer = torch.optim.Adam(net.parameters(), lr=1e-5)
+    return lambda: train_step(net, optimizer, x, y, START), net
+
+
+def step_times(x, y, threads: int, repeats: int) -> dict[str, float]:
+    """Median seconds per window of each path, steps interleaved, one warm-up step each."""
+    torch.set_num_threads(threads)
+    steps = {c: make_step(c, threads, x, y)[0] for c in ("dense", "sparse")}
+    for step in steps.values():
+        step()
+    times: dict[str, list[float]] = {c: [] for c in steps}
+    for _ in range(repeats):
+        for compute, step in steps.items():
+            start = time.perf_counter()
+            step()
+            times[compute].append(time.perf_counter() - start)
+    return {c: statistics.median(t) / BATCH for c, t in times.items()}
+
+
+def peak_memory(compute: str, threads: int) -> dict[str, float]:
+    """Peak resident set (MiB) of one step in this (fresh) process."""
+    torch.set_num_threads(threads)
+    x, y = windows()
+    step, _ = make_step(compute, threads, x, y)
+    step()  # compile and warm up; the allocator keeps what it grew to
+    with open("/proc/self/clear_refs", "w") as f:
+        f.write("5")
+    before = _status_mib("VmRSS")
+    step()
+    peak = _status_mib("VmHWM")
+    return {"peak_mib": peak, "growth_mib": peak - before}
+
+
+def gradient_check(x, y) -> dict:
+    """Per-tensor relative gradient difference and flipped spikes per layer (float32)."""
+    torch.set_num_threads(2)
+    grads = {}
+    for compute in ("dense", "sparse"):
+        net = model(compute, 2)
+        net.zero_grad()
+        angular_velocity_loss(net(x), y, START).backward()
+        grads[compute] = {n: p.grad.clone() for n, p in net.named_parameters()}
+        timing = net.event_engine.timing if compute == "sparse" else None
+    rel = {
+        n: float((grads["sparse"][n] - g).norm() / g.norm()) for n, g in grads["dense"].items()
+    }
+    with torch.no_grad():
+        _, dense_spikes = net.forward_with_spikes(x)
+    plan = _Plan.of(net.convs, net.pool, (x.shape[2], x.shape[3]), np.float32, record=False)
+    flips = [0] * len(net.convs)
+    for b in range(x.shape[0]):
+        element = plan.forward_element(x[b].numpy())
+        outputs = [*element.inputs[1:], None]
+        for i, spikes in enumerate(dense_spikes):
+            s = spikes[b].permute(3, 1, 2, 0).reshape(STEPS, -1)  # (T, H·W·C) channels-last
+            dense_set = set((s.nonzero()[:, 0] * s.shape[1] + s.nonzero()[:, 1]).tolist())
+            if outputs[i] is None:
+                continue  # the last layer's list is pooled, not kept; counted through its inputs
+            offsets, index, _ = outputs[i]
+            steps = np.repeat(np.arange(STEPS), np.diff(offsets))
+            sparse_set = set((steps * s.shape[1] + index).tolist())
+            flips[i] += len(dense_set ^ sparse_set)
+    return {"relative": rel, "flipped_spikes": flips[:-1], "timing": timing}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--json", help="write the headline numbers to this file")
+    parser.add_argument("--memory-of", help=argparse.SUPPRESS)  # internal: COMPUTE:THREADS
+    args = parser.parse_args()
+    if args.memory_of:
+        compute, threads = args.memory_of.split(":")
+        print(json.dumps(peak_memory(compute, int(threads))))
+        return
+
+    x, y = windows()
+    density = float(x.mean())
+    rows = []
+    for threads in args.threads:
+        seconds = step_times(x, y, threads, args.repeats)
+        for compute in ("dense", "sparse"):
+            command = [sys.executable, __file__, "--memory-of", f"{compute}:{threads}"]
+            out = subprocess.run(command, capture_output=True, text=True, check=True).stdout
+            memory = json.loads(out.strip().splitlines()[-1])
+            rows.append({"compute": compute, "threads": threads, "s": seconds[compute], **memory})
+            print(f"  {compute:6s} {threads} thr {seconds[compute]:.3f} s/window", file=sys.stderr)
+    check = gradient_check(x, y)
+    print(
+        f"SNN-6 training step (forward + backward + Adam), 240x180, T = {STEPS}, batch {BATCH} "
+        f"(4 ideal + 4 davis240c windows, input density {density:.2%}), surrogate cut {CUT}, "
+        f"torch {torch.__version__}, median of {args.repeats} interleaved steps"
+    )
+    print("| threads | path | s per window | peak RSS (MiB) | growth (MiB) | dense / this |")
+    print("|---:|---|---:|---:|---:|---:|")
+    for r in rows:
+        dense = next(o for o in rows if o["threads"] == r["threads"] and o["compute"] == "dense")
+        print(
+            f"| {r['threads']} | {r['compute']} | {r['s']:.3f} | {r['peak_mib']:.0f} | "
+            f"{r['growth_mib']:.0f} | {dense['s'] / r['s']:.2f}x |"
+        )
+    rel = check["relative"]
+    print("gradient relative norm difference per tensor: "
+          + ", ".join(f"{n} {v:.1e}" for n, v in rel.items()))  # fmt: skip
+    print(f"spikes that differ between the paths, layers 1-4: {check['flipped_spikes']}")
+    t = check["timing"]
+    print("engine profile (CPU s per batch of 8, summed over threads):")
+    print("| layer | forward | backward | input spikes | active pairs |")
+    print("|---:|---:|---:|---:|---:|")
+    inputs = [t.inputs, *t.spikes]
+    for i, (f, b) in enumerate(zip(t.layer_forward_s, t.layer_backward_s, strict=True)):
+        print(f"| {i + 1} | {f:.2f} | {b:.2f} | {inputs[i]} | {t.active[i]} |")
+    print(f"wall: forward {t.forward_s:.2f} s, backward {t.backward_s:.2f} s (2 threads)")
+    if args.json:
+        two = {r["compute"]: r for r in rows if r["threads"] == max(args.threads)}
+        result = {
+            "dense_s_per_window": two["dense"]["s"],
+            "sparse_s_per_window": two["sparse"]["s"],
+            "speedup": two["dense"]["s"] / two["sparse"]["s"],
+            "threads": max(args.threads),
+            "max_grad_rel_diff": max(rel.values()),
+            "grad_rel_diff": rel,
+            "flipped_spikes": check["flipped_spikes"],
+            "peak_mib": {f"{r['compute']}_{r['threads']}": r["peak_mib"] for r in rows},
+            "date": time.strftime("%Y-%m-%d"),
+        }
+        with open(args.json, "w") as f:
+            json.dump(result, f, indent=2)
+
+
+if __name__ == "__main__":
+    main()
