@@ -14,7 +14,7 @@ from scipy.ndimage import gaussian_filter
 from scipy.spatial.transform import Rotation
 
 from spikegyro.baselines import cmax, cmax_iwe
-from spikegyro.baselines.cmax_windows import count_windows, hot_pixel_mask, time_windows
+from spikegyro.baselines.cmax_windows import WindowPolicy, hot_pixel_mask
 from spikegyro.events.calib import Calibration
 from spikegyro.events.core import EventArray, Recording
 
@@ -153,7 +153,7 @@ def test_maximize_bfgs_finds_the_peak_of_a_skewed_quadratic() -> None:
         d = x - peak
         return -0.5 * float(d @ a @ d), -(a @ d)
 
-    np.testing.assert_allclose(cmax.maximize_bfgs(objective, np.zeros(3), 50), peak, atol=1e-3)
+    np.testing.assert_allclose(cmax.maximize_bfgs(objective, np.zeros(3), 50).x, peak, atol=1e-3)
 
 
 @pytest.mark.parametrize(
@@ -208,41 +208,18 @@ def test_distorted_lens_is_undistorted_with_its_calibration() -> None:
     )
 
 
-def test_count_windows_cover_the_stream_and_centre_their_reference_time() -> None:
-    t = np.arange(0, 100_000, 10)  # 10,000 events, one every 10 µs
-    rows = count_windows(t, 3000, 2000)
-    np.testing.assert_array_equal(rows[:, 0], [0, 2000, 4000, 6000, 7000])
-    np.testing.assert_array_equal(rows[:, 1] - rows[:, 0], 3000)
-    assert rows[-1, 1] == len(t)
-    np.testing.assert_array_equal(rows[:, 2], (t[rows[:, 0]] + t[rows[:, 1] - 1]) // 2)
-    whole = count_windows(t[:500], 3000, 2000)  # shorter than a window: one window of all
-    np.testing.assert_array_equal(whole, [[0, 500, (0 + 4990) // 2]])
-
-
-def test_time_windows_centred_or_causal() -> None:
-    t = np.arange(0, 100_000, 100)  # one event every 0.1 ms
-    centred = time_windows(t, 20_000, np.array([50_000]))
-    np.testing.assert_array_equal(centred, [[400, 600, 50_000]])  # [40 ms, 60 ms)
-    causal = time_windows(t, 20_000, np.array([50_000]), causal=True)
-    np.testing.assert_array_equal(causal, [[300, 500, 50_000]])  # [30 ms, 50 ms)
-    events = EventArray.from_arrays(t % WIDTH, t % HEIGHT, t, t % 2, WIDTH, HEIGHT)
-    plan = cmax.plan_windows(events, cmax.CMaxConfig(window_ms=20.0, stride_ms=10.0))
-    np.testing.assert_array_equal(plan[:, 2], np.arange(10_000, 89_901, 10_000))
-    short = cmax.plan_windows(events[:50], cmax.CMaxConfig(window_ms=20.0))
-    np.testing.assert_array_equal(short, [[0, 50, 4900 // 2]])  # one window at the middle
-
-
-def test_predict_stream_by_count_tracks_a_change_of_rotation() -> None:
+def test_predict_stream_tracks_a_change_of_rotation_causally() -> None:
     first, second = np.radians([0.0, 150.0, 0.0]), np.radians([100.0, 0.0, -100.0])
     a = point_track_events(first, seed=12, duration_s=0.04, points=1000)
     b = point_track_events(second, seed=13, duration_s=0.04, points=1000).shift_time(40_000)
     events = EventArray.concatenate([a, b])
-    config = replace(cmax.CMaxConfig(), window_events=5000, stride_events=2500)
-    t_us, omega = cmax.predict_stream(events, config=config)
-    rows = count_windows(events.t, 5000, 2500)
-    np.testing.assert_array_equal(t_us, rows[:, 2])
-    assert_close_omega(omega[0], first)
-    assert_close_omega(omega[-1], second)
+    config = replace(cmax.CMaxConfig(), rate_hz=200.0, window=WindowPolicy(fixed_events=5000))
+    t_us, omega = cmax.predict_stream(events, config=config, t_first_us=0)
+    # One estimate every 5 ms from the first with 100 events, each from events up to its time.
+    assert (np.diff(t_us) == 5000).all() and t_us[-1] <= events.t[-1]
+    at = {int(t): w for t, w in zip(t_us, omega, strict=True)}
+    assert_close_omega(at[35_000], first)  # the last 5,000 events before 35 ms are all first
+    assert_close_omega(at[75_000], second)
 
 
 def test_hold_per_ms_takes_the_latest_estimate_by_each_bin_end() -> None:
@@ -264,7 +241,7 @@ def test_predict_windows_scores_steps_from_first_step() -> None:
     omega = np.radians([0.0, 120.0, 0.0])
     events = point_track_events(omega, seed=5, duration_s=0.06, points=600).shift_time(2_000_000)
     window = SimpleNamespace(events=events, omega=np.tile(omega, (60, 1)), t_start_us=2_000_000)
-    config = replace(cmax.SIMULATED_CONFIG, stride_ms=10)
+    config = replace(cmax.SIMULATED_CONFIG, rate_hz=100.0)
     pred = cmax.predict_windows([window], config, first_step=39)
     assert pred.shape == (1, 60, 3)
     assert not pred[0, :39].any()
@@ -321,7 +298,7 @@ def _cli(args: list[str]) -> None:
     assert result.exit_code == 0, result.output
 
 
-def test_cli_default_count_windows_and_whole_span(tmp_path) -> None:
+def test_cli_fixed_count_windows_and_whole_span(tmp_path) -> None:
     from spikegyro.events.io import write_recording
     from spikegyro.stream.writer import read_predictions
 
@@ -336,41 +313,21 @@ def test_cli_default_count_windows_and_whole_span(tmp_path) -> None:
         " ".join(str(v) for v in (F, F, WIDTH / 2, HEIGHT / 2, -0.37, 0.15, -3e-4, -8e-4, 0.0))
     )
     out = tmp_path / "pred.csv"
-    _cli(
-        [
-            str(path),
-            "--calib",
-            str(calib),
-            "--window-events",
-            "5000",
-            "--stride-events",
-            "5000",
-            "--out",
-            str(out),
-        ]
-    )
+    _cli([str(path), "--calib", str(calib), "--window-events", "5000", "--rate-hz", "200",
+          "--out", str(out)])  # fmt: skip
     pred = read_predictions(out)
     t0 = events.t[0] // 1000 * 1000
-    steps = -(-(events.t[-1] + 1 - t0) // 1000)
-    np.testing.assert_array_equal(pred["t_us"], t0 + 1000 * np.arange(1, steps + 1))
-    assert_close_omega(pred["omega"][10], first)  # a window of the first half stands for 10 ms
-    assert_close_omega(pred["omega"][-10], second)
-    # --start/--end --whole: one estimate from the events of [5 ms, 35 ms), held on every step.
-    _cli(
-        [
-            str(path),
-            "--calib",
-            str(calib),
-            "--whole",
-            "--start",
-            "0.005",
-            "--end",
-            "0.035",
-            "--out",
-            str(out),
-        ]
-    )
+    # Every row its own estimate, every 5 ms, none after the last event.
+    assert (np.diff(pred["t_us"]) == 5000).all() and pred["t_us"][-1] <= events.t[-1] + 1
+    at = {int(t): w for t, w in zip(pred["t_us"], pred["omega"], strict=True)}
+    assert_close_omega(at[t0 + 35_000], first)
+    assert_close_omega(at[t0 + 75_000], second)
+    # The window holds the last 5,000 events once there are that many; all sharpen the image.
+    assert (pred["events"] <= 5000).all() and (pred["events"][-5:] == 5000).all()
+    assert (pred["contrast_gain"] > 1).all()
+    # --start/--end --whole: one estimate from the events of [5 ms, 35 ms).
+    _cli([str(path), "--calib", str(calib), "--whole", "--start", "0.005", "--end", "0.035",
+          "--out", str(out)])  # fmt: skip
     pred = read_predictions(out)
-    assert len(pred["t_us"]) == 30
-    np.testing.assert_allclose(pred["omega"], np.tile(pred["omega"][0], (30, 1)))
+    assert len(pred["t_us"]) == 1
     assert_close_omega(pred["omega"][0], first)

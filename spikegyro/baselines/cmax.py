@@ -73,7 +73,7 @@ class CMaxConfig:
             ill-posed (too little motion to tell from none).
         gain_drop: when an estimate's contrast gain above 1 falls below this share of its
             recent best, or it is ill-posed, the next search comes after a fifth of
-            ``search_every_s``.
+            ``search_every_s``; below half this share, at the next estimate.
 
     One window (:func:`estimate_window`, :func:`search`):
         max_events: windows with more events are randomly subsampled to this many (speed).
@@ -496,8 +496,6 @@ def hold_per_ms(t_us: np.ndarray, omega: np.ndarray, t_start_us: int, num_steps:
     held = np.zeros((num_steps, 3))
     held[index >= 0] = omega[index[index >= 0]]
     return held
-
-
 
 
 SIMULATED_CONFIG = CMaxConfig(rate_hz=200.0, window=WindowPolicy(fixed_ms=30.0))

@@ -85,7 +85,7 @@ class CMaxEstimator:
         self._omega: np.ndarray | None = None
         self._last_search_us: int | None = None
         self._hessian: np.ndarray | None = None
-        self._doubt = False
+        self._doubt = 1.0
         self._best_gain = 0.0
         self._last_t: int | None = None
         self._buffer = EventBuffer()
@@ -93,6 +93,8 @@ class CMaxEstimator:
         self._rays: tuple[np.ndarray, np.ndarray] | None = None
         self._sensor: tuple[int, int] | None = None
         self._rng = np.random.default_rng(self.config.seed)
+        self._dither = np.random.default_rng(self.config.seed + 1)
+        self._counted_us: int | None = None
 
     def update(self, events: EventArray) -> Estimates:
         """Add a time-ordered batch; returns the estimates it completes.
@@ -159,11 +161,10 @@ class CMaxEstimator:
         # undithered, the warp of ω = 0 leaves every vote whole on a pixel centre while any
         # other ω splits votes bilinearly, so ω = 0 gets a spurious contrast peak that pulls
         # thinned windows' estimates to zero.
-        fx, fy = self._intrinsics[0], self._intrinsics[1]
-        bx = bx + (self._rng.random(len(bx)) - 0.5) / fx
-        by = by + (self._rng.random(len(by)) - 0.5) / fy
+        jitter = self._dither.random((len(bx), 2)) - 0.5  # row by row: batching-independent
+        bx = bx + jitter[:, 0] / self._intrinsics[0]
+        by = by + jitter[:, 1] / self._intrinsics[1]
         self._buffer.append(t, bx, by, pix)
-        self._hot.add(pix, self._last_t)
 
     def _start(self, events: EventArray) -> None:
         """Set up for the sensor of the first batch."""
@@ -190,10 +191,21 @@ class CMaxEstimator:
         columns = list(zip(*rows, strict=True))
         return Estimates(*(np.array(c) for c in columns))
 
+    def _count_hot(self, t_us: int) -> None:
+        """Count the events up to ``t_us`` not counted yet into the hot-pixel detector (at
+        estimate times only, so that the mask does not depend on how events were batched)."""
+        t = self._buffer.times()
+        lo = 0 if self._counted_us is None else int(np.searchsorted(t, self._counted_us, "right"))
+        hi = int(np.searchsorted(t, t_us, side="right"))
+        start = self._buffer.start
+        self._hot.add(self._buffer.pix[start + lo : start + hi], t_us)
+        self._counted_us = t_us
+
     def _window(self, t_us: int) -> tuple[np.ndarray, float, int] | None:
         """Buffer indices of the (thinned) events of the window ending at ``t_us``, its span
         (µs) and its number of events (hot pixels included: the window is sized on them);
         None when fewer than ``min_events`` remain once hot pixels are left out."""
+        self._count_hot(t_us)
         buf, config = self._buffer, self.config
         t = buf.times()
         i1 = int(np.searchsorted(t, t_us, side="right"))
@@ -232,7 +244,7 @@ class CMaxEstimator:
         since = math.inf if self._last_search_us is None else t_us - self._last_search_us
         # An ill-posed estimate, or a contrast gain fallen well below its recent best, may mean
         # that tracking has lost the motion or slid to a worse local maximum: search sooner.
-        if self._omega is None or (every > 0 and since >= every * (0.2 if self._doubt else 1)):
+        if self._omega is None or (every > 0 and since >= every * self._doubt):
             found = search(problem, config, self._omega, grid=True, rng=self._rng)
             self._last_search_us = t_us
             self.searches += 1
@@ -253,14 +265,20 @@ class CMaxEstimator:
         if math.isfinite(gain):
             # Best recent gain above 1, forgetting over about 50 estimates.
             self._best_gain = max(gain - 1.0, self._best_gain * 0.98)
-        gain_dropped = not gain - 1.0 >= config.gain_drop * self._best_gain
+        share = (gain - 1.0) / self._best_gain if self._best_gain > 0 else 1.0
         flags = 0
         if count < config.window.min_events and config.window.fixed_events <= 0:
             flags |= ILL_FEW_EVENTS
         moved = pixel_speed(omega, float(self._intrinsics[0]), self._radius) * span * 1e-6
         if moved < config.min_motion_px:
             flags |= ILL_LITTLE_MOTION
-        self._doubt = bool(flags) or gain_dropped
+        # The share of the search interval to wait before the next search: a collapsed gain
+        # (the motion changed abruptly) calls for one at once.
+        self._doubt = 1.0
+        if flags or not share >= config.gain_drop:
+            self._doubt = 0.2
+        if not share >= 0.5 * config.gain_drop:
+            self._doubt = 0.0
         delay = float(dt.mean()) * 1e6
         return t_us, omega, count, span, delay, gain, flags
 

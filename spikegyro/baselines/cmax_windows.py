@@ -159,7 +159,7 @@ class HotPixels:
 
     def add(self, pix: np.ndarray, t_last_us: int) -> None:
         """Count a batch of events (flat pixel indices) ending at ``t_last_us``."""
-        if self.factor <= 0 or not len(pix):
+        if self.factor <= 0:
             return
         if self._decayed_at is None:
             self._decayed_at = self._checked_at = t_last_us
