@@ -2,6 +2,9 @@
 
     .venv/bin/python bench/cmax.py --real ../shared/real/ecd_windows [--reference-grid 15]
         [--translboxes ../shared/real/rueckauer2016_translBoxes]
+    .venv/bin/python bench/cmax.py --make-sim sim-roll
+    .venv/bin/python bench/cmax.py --stream --sim sim-roll --real ../shared/real/ecd_windows \
+        --translboxes ../shared/real/rueckauer2016_translBoxes
 
 Accuracy. Each ``<name>/`` folder under ``--real`` holds ``events.txt`` and ``calib.txt`` (and
 optionally ``gyro_from_mocap.txt``, ``t wx wy wz``). The estimate is what ``spikegyro baseline
@@ -11,6 +14,14 @@ per-event undistortion, SciPy rotations, bilinear voting, ``scipy.ndimage.gaussi
 (σ = 1 px), an exhaustive grid and Nelder-Mead from its best points. Agreement with it is
 self-consistency, not ground truth; the motion-capture ω of a window (±20 deg/s) is printed too.
 ``--translboxes``: the 2 s recording with its own gyro, streamed at the defaults.
+
+Streaming (``--stream``): the live estimator of ``spikegyro predict --method cmax`` on whole
+recordings with a gyro (translBoxes, ``--sim DIR`` simulated rolls made by ``--make-sim DIR``,
+the ECD ``shapes`` window): per-axis mean absolute error against the gyro interpolated at each
+estimate's time at 10, 100 and 1,000 Hz output, latency, and CPU-seconds per second of events;
+then the speed table over event rates (a simulated roll played 1-8x faster: a faithful faster
+rotation, so windows shorten as they would) against the previous engine (one 30,000-event window
+every 10,000 events, warm-started), measured in the same run.
 
 Speed (CPU seconds, so that other processes on a shared machine distort it less):
 - cold: a new Python process estimating one window, imports and Numba cache loading included
@@ -35,6 +46,7 @@ import statistics
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -229,6 +241,126 @@ def speed(folders: list[Path], estimates: list[np.ndarray], cold_runs: int) -> N
     print(f"load average: {os.getloadavg()[0]:.1f} (absolute timings are distorted by other load)")
 
 
+def simulate_roll(seconds: float, seed: int):
+    """A DAVIS240C-like recording (the ``davis240c`` sensor preset: noise, hot pixels, lens
+    mapped onto the pinhole) of a camera rolling at 20-40 deg/s with ±2 deg/s of tilt and pan."""
+    from dataclasses import replace
+
+    from spikegyro.events.core import Recording
+    from spikegyro.sim import Trajectory, simulate
+    from spikegyro.sim.dataset import SimConfig, _sensor_recording, _sensor_scene, _splits
+    from spikegyro.sim.sensor import sensor_preset
+    from spikegyro.sim.trajectory import random_rotation
+
+    rng = np.random.default_rng(seed)
+    config = SimConfig(sensor="davis240c")
+    preset = sensor_preset("davis240c")
+    sensor = preset.draw(rng)
+    kind, pano = _sensor_scene(preset, preset.scenes, rng, _splits(config)["test"], 1024, "roll")
+    t = np.linspace(0, seconds, 200)
+    phase = rng.uniform(0, 2 * np.pi, 3)
+    roll = 30 + 10 * np.sin(2 * np.pi * t / 1.7 + phase[0])
+    small = 2.0 * np.sin(2 * np.pi * t / 1.1 + phase[1:, None]).T
+    omega = np.radians(np.column_stack([small[:, 0], small[:, 1], roll]))
+    traj = Trajectory(t, omega, r0=random_rotation(rng), duration_s=seconds)
+    ev = replace(config.events, contrast_on=sensor.contrast_on, contrast_off=sensor.contrast_off)
+    rec = _sensor_recording(simulate(pano, traj, config.camera, ev, rng, seconds, sensor=sensor),
+                            config, preset, sensor)  # fmt: skip
+    return Recording(rec.events, rec.gyro, {**rec.attrs, "scene_kind": kind})
+
+
+def stream_once(events, camera, gyro, rate_hz: float, bias=None) -> dict:
+    """One streaming run: per-axis MAE (deg/s) from 50 ms on, latency, CPU-s per s of events."""
+    from spikegyro.baselines.cmax_stream import CMaxEstimator
+
+    est = CMaxEstimator(camera, cmax.CMaxConfig(rate_hz=rate_hz))
+    c0 = time.process_time()
+    out = est.run(events)
+    cpu = time.process_time() - c0
+    seconds = (int(events.t[-1]) - int(events.t[0])) / 1e6
+    row = {"estimates": len(out), "cpu_per_s": cpu / seconds, "rate": len(out) / seconds,
+           "latency_ms": float(np.median(out.delay_us)) / 1000 if len(out) else np.nan}  # fmt: skip
+    if gyro is not None and len(out):
+        ref = gyro.interpolate(out.t_us)
+        if bias is not None:
+            ref = ref - bias
+        ok = (out.t_us > est.t0_us + 50_000) & (out.t_us <= gyro.t[-1]) & (out.t_us >= gyro.t[0])
+        row["mae"] = np.degrees(np.abs(out.omega[ok] - ref[ok])).mean(axis=0)
+        row["scored"] = int(ok.sum())
+    return row
+
+
+def stream_accuracy(recordings: list[tuple[str, object, object, object, object]]) -> None:
+    print("recording                 rate Hz  estimates  tilt   pan  roll (MAE deg/s)  "
+          "latency ms  CPU-s per s")  # fmt: skip
+    for name, events, camera, gyro, bias in recordings:
+        for rate in (10.0, 100.0, 1000.0):
+            r = stream_once(events, camera, gyro, rate, bias)
+            mae = r.get("mae", np.full(3, np.nan))
+            print(f"{name:25s} {rate:7.0f} {r['estimates']:10d} {mae[0]:5.2f} {mae[1]:5.2f} "
+                  f"{mae[2]:5.2f}  {r['latency_ms']:17.1f} {r['cpu_per_s']:12.3f}",
+                  flush=True)  # fmt: skip
+
+
+def previous_engine_cpu_per_s(events, camera) -> float:
+    """CPU-s per s of events of the previous `baseline cmax`: a 30,000-event window every
+    10,000 events, each warm-started from the last and refined on all its events."""
+    c0 = time.process_time()
+    previous = None
+    for i0 in range(0, max(len(events) - 30_000, 0) + 1, 10_000):
+        window = events[i0 : i0 + 30_000]
+        previous = cmax.estimate_window(window, camera, init=previous, grid=previous is None)
+    return (time.process_time() - c0) / ((int(events.t[-1]) - int(events.t[0])) / 1e6)
+
+
+def speed_table(events, camera) -> None:
+    """CPU-s per s of events at 100 Hz against the event rate (the recording played faster)."""
+    print("speed-up  M events/s  ours CPU-s/s (100 Hz)  real-time factor  previous CPU-s/s")
+    below = None
+    for factor in (1, 2, 4, 8):
+        fast = events.shift_time(-int(events.t[0]))
+        fast = replace(fast, t=fast.t // factor)
+        seconds = int(fast.t[-1]) / 1e6
+        ours = stream_once(fast, camera, None, 100.0)["cpu_per_s"]
+        prev = previous_engine_cpu_per_s(fast, camera) if factor <= 2 else float("nan")
+        rate = len(fast) / seconds / 1e6
+        print(f"{factor:8d} {rate:11.2f} {ours:22.3f} {1 / ours:17.2f} {prev:17.3f}", flush=True)
+        if ours > 1 and below is None:
+            below = rate
+    where = "> the rates tried" if below is None else f"{below:.2f} M events/s"
+    print(f"falls below real time at: {where}")
+
+
+def stream(args: argparse.Namespace) -> None:
+    from spikegyro.events.calib import Calibration
+    from spikegyro.events.io import read_gyro
+
+    recordings = []
+    if args.translboxes:
+        t = args.translboxes
+        camera = Calibration(245.0, 245.0, 120.0, 90.0)
+        ev, gyro = read_recording(t / "events.txt").events, read_gyro(t / "gyro.txt")
+        recordings.append(("translBoxes", ev, camera, gyro, None))
+        bias = np.radians([3.5, -1.0, 0.0])  # the README's gyro bias (camera frame)
+        recordings.append(("translBoxes, bias removed", ev, camera, gyro, bias))
+    if args.real and (args.real / "shapes_rotation").is_dir():
+        f = args.real / "shapes_rotation"
+        gyro = read_gyro(f / "gyro_from_mocap.txt")
+        recordings.append(("ECD shapes (mocap)", read_recording(f / "events.txt").events,
+                           load_calibration(f / "calib.txt"), gyro, None))  # fmt: skip
+    sims = sorted(args.sim.glob("*.h5")) if args.sim else []
+    for path in sims:
+        rec = read_recording(path)
+        camera = cmax.camera_from_attrs(rec.attrs, *rec.events.sensor_size)
+        rate = len(rec.events) / (rec.events.duration_us / 1e6) / 1e6
+        recordings.append((f"sim {path.stem} {rate:.2f}M/s", rec.events, camera, rec.gyro, None))
+    stream_accuracy(recordings)
+    if sims:
+        rec = read_recording(sims[0])
+        speed_table(rec.events, cmax.camera_from_attrs(rec.attrs, *rec.events.sensor_size))
+    print(f"load average: {os.getloadavg()[0]:.1f} (CPU seconds; wall time suffers more)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--real", type=Path, help="Folder of real windows (<name>/events.txt).")
@@ -237,7 +369,20 @@ def main() -> None:
         "--reference-grid", type=int, default=15, help="Reference grid per axis (0: skip it)."
     )
     parser.add_argument("--cold-runs", type=int, default=3)
+    parser.add_argument("--stream", action="store_true", help="The live estimator's tables.")
+    parser.add_argument("--sim", type=Path, help="Folder of simulated roll recordings (*.h5).")
+    parser.add_argument("--make-sim", type=Path, help="Write 3 simulated 3.2 s rolls here.")
     args = parser.parse_args()
+    if args.make_sim:
+        from spikegyro.events.io import write_recording
+
+        args.make_sim.mkdir(parents=True, exist_ok=True)
+        for seed in (1, 2, 3):
+            write_recording(args.make_sim / f"roll{seed}.h5", simulate_roll(3.2, seed))
+        return
+    if args.stream:
+        stream(args)
+        return
     folders = sorted(p.parent for p in args.real.glob("*/events.txt")) if args.real else []
     if not folders:
         print("no real windows (pass --real DIR): accuracy and speed skipped")

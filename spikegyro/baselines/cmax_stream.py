@@ -201,7 +201,14 @@ class CMaxEstimator:
         self._hot.add(self._buffer.pix[start + lo : start + hi], t_us)
         self._counted_us = t_us
 
-    def _window(self, t_us: int) -> tuple[np.ndarray, float, int] | None:
+    def _search_due(self, t_us: int) -> bool:
+        """Whether the estimate at ``t_us`` runs the global search: the first, then every
+        ``search_every_s``, sooner while tracking is in doubt."""
+        every = self.config.search_every_s * 1e6
+        since = math.inf if self._last_search_us is None else t_us - self._last_search_us
+        return self._omega is None or (every > 0 and since >= every * self._doubt)
+
+    def _window(self, t_us: int, searching: bool) -> tuple[np.ndarray, float, int] | None:
         """Buffer indices of the (thinned) events of the window ending at ``t_us``, its span
         (µs) and its number of events (hot pixels included: the window is sized on them);
         None when fewer than ``min_events`` remain once hot pixels are left out."""
@@ -212,7 +219,7 @@ class CMaxEstimator:
         speed = None
         if self._omega is not None:
             speed = pixel_speed(self._omega, float(self._intrinsics[0]), self._radius)
-        i0 = config.window.start(t, i1, t_us, speed)
+        i0 = config.window.start(t, i1, t_us, speed, searching)
         index = np.arange(buf.start + i0, buf.start + i1)
         index = index[~self._hot.hot[buf.pix[index]]]
         count = len(index)
@@ -226,7 +233,8 @@ class CMaxEstimator:
 
     def _estimate(self, t_us: int) -> tuple | None:
         """One estimate at ``t_us`` (the row of an ``Estimates``), or None without events."""
-        window = self._window(t_us)
+        searching = self._search_due(t_us)
+        window = self._window(t_us, searching)
         if window is None:
             return None
         index, span, count = window
@@ -240,11 +248,7 @@ class CMaxEstimator:
         problem = Problem(
             buf.bx[index], buf.by[index], dt, np.ones(len(index)), self._intrinsics, width, height
         )
-        every = config.search_every_s * 1e6
-        since = math.inf if self._last_search_us is None else t_us - self._last_search_us
-        # An ill-posed estimate, or a contrast gain fallen well below its recent best, may mean
-        # that tracking has lost the motion or slid to a worse local maximum: search sooner.
-        if self._omega is None or (every > 0 and since >= every * self._doubt):
+        if searching:
             found = search(problem, config, self._omega, grid=True, rng=self._rng)
             self._last_search_us = t_us
             self.searches += 1
@@ -272,8 +276,10 @@ class CMaxEstimator:
         moved = pixel_speed(omega, float(self._intrinsics[0]), self._radius) * span * 1e-6
         if moved < config.min_motion_px:
             flags |= ILL_LITTLE_MOTION
-        # The share of the search interval to wait before the next search: a collapsed gain
-        # (the motion changed abruptly) calls for one at once.
+        # The share of the search interval to wait before the next search. An ill-posed
+        # estimate, or a gain fallen well below its recent best, may mean that tracking lost
+        # the motion or slid to a worse local maximum; a collapsed gain (the motion changed
+        # abruptly) calls for a search at once.
         self._doubt = 1.0
         if flags or not share >= config.gain_drop:
             self._doubt = 0.2

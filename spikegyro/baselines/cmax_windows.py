@@ -56,6 +56,9 @@ class WindowPolicy:
         min_ms, max_ms: bounds of adaptive windows, ms.
         fixed_ms: > 0: every window lasts this long instead (ms).
         fixed_events: > 0: every window holds the last this many events instead.
+        search_ms: an adaptive window that starts a global search (no estimate to size it
+            by, or one in doubt) lasts at least this long, so that a rotation of a few deg/s
+            moves edges enough to be found.
     """
 
     min_events: int = 3000
@@ -64,6 +67,7 @@ class WindowPolicy:
     max_ms: float = 300.0
     fixed_ms: float = 0.0
     fixed_events: int = 0
+    search_ms: float = 30.0
 
     @property
     def horizon_us(self) -> int:
@@ -71,10 +75,17 @@ class WindowPolicy:
         Count windows reach back as far as their events go, bounded by ``max_ms``."""
         return round(1000 * (self.fixed_ms if self.fixed_ms > 0 else self.max_ms))
 
-    def start(self, t_us: np.ndarray, i1: int, t_ref_us: int, speed_px_s: float | None) -> int:
+    def start(
+        self,
+        t_us: np.ndarray,
+        i1: int,
+        t_ref_us: int,
+        speed_px_s: float | None,
+        searching: bool = False,
+    ) -> int:
         """Index of the window's first event among sorted times ``t_us`` whose window ends
         after index ``i1 - 1`` at ``t_ref_us``; ``speed_px_s``: image speed of the previous
-        estimate (None: none yet)."""
+        estimate (None: none yet); ``searching``: the window is for a global search."""
         if self.fixed_events > 0:
             i0 = max(i1 - self.fixed_events, 0)
             lo = int(np.searchsorted(t_us, t_ref_us - self.horizon_us, side="right"))
@@ -89,7 +100,8 @@ class WindowPolicy:
             by_motion = 0.0
             if speed_px_s is not None and speed_px_s > 0:
                 by_motion = 1e6 * self.target_px / speed_px_s
-            window_us = min(max(by_count, by_motion, 1000.0 * self.min_ms), 1000.0 * self.max_ms)
+            shortest = max(self.min_ms, self.search_ms if searching else 0.0)
+            window_us = min(max(by_count, by_motion, 1000.0 * shortest), 1000.0 * self.max_ms)
         return int(np.searchsorted(t_us, t_ref_us - window_us, side="right"))
 
 
