@@ -56,6 +56,8 @@ def test_predict_ecd_folder_with_calibration_and_gyro(tmp_path):
     assert "real time" in proc.stderr and "RMSE" in proc.stderr
     assert "using the calibration" in proc.stderr
     assert out.with_suffix(".png").stat().st_size > 0
+    # A real recording (not from the simulator): one line points to contrast maximization.
+    assert "--method cmax" in proc.stderr and "not yet accurate" in proc.stderr
 
 
 def test_predict_user_errors_are_one_line(tmp_path, monkeypatch, capsys):
