@@ -1,0 +1,44 @@
+"""``train --compute sparse|dense``: the event-driven engine in the training loop."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from test_train_loop import dataset, state_of, tiny_config  # noqa: F401 (fixture)
+
+from spikegyro.errors import InputError
+from spikegyro.train.loop import train
+
+
+def test_sparse_and_dense_runs_share_checkpoints_and_freeze(dataset, tmp_path):  # noqa: F811
+    """A sparse run resumes a dense one (same weights, same optimizer state), frozen layers stay
+    fixed, and the grid readout trains on the engine."""
+    dense = train(tiny_config(dataset, tmp_path, compute="dense", iterations=2, val_every=2),
+                  progress=False)  # fmt: skip
+    assert dense.compute == "dense"
+    resumed = train(tiny_config(dataset, tmp_path, compute="sparse", iterations=3, val_every=3),
+                    resume=True, progress=False)  # fmt: skip
+    assert resumed.compute == "sparse" and resumed.steps == 3
+    grid = train(tiny_config(dataset, tmp_path / "g", model="snn6-grid", freeze=2,
+                             init=str(tmp_path / "last.pt"), iterations=1, val_every=1),
+                 progress=False)  # fmt: skip
+    assert grid.compute == "sparse"  # the CPU default
+    before, after = state_of(tmp_path / "last.pt"), state_of(tmp_path / "g" / "last.pt")
+    assert torch.equal(before["conv1.weight"], after["conv1.weight"])
+    assert not torch.equal(before["conv3.weight"], after["conv3.weight"])
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"compute": "fast"}, "--compute fast"),
+        ({"compute": "sparse", "model": "ann6"}, "the ANNs use --compute dense"),
+        ({"compute": "sparse", "device": "cuda"}, "runs on the CPU"),
+        ({"compute": "sparse", "surrogate_cut": 0.01}, "cut above 0.0357"),
+        ({"surrogate_cut": 1.5}, "must lie in"),
+    ],
+)
+def test_bad_compute_options_are_one_line_errors(dataset, tmp_path, overrides, message):  # noqa: F811
+    with pytest.raises(InputError, match=message) as error:
+        tiny_config(dataset, tmp_path, **overrides)
+    assert "\n" not in str(error.value)
