@@ -20,6 +20,7 @@ from spikegyro.evaluate import compare_runs, run_evaluation
 from spikegyro.events.core import EventArray, GyroTrace, Recording
 from spikegyro.events.io import write_recording
 from spikegyro.models.registry import build_model, save_checkpoint
+from spikegyro.train.loss import validation_metrics
 
 SENSOR = (64, 64)
 
@@ -97,6 +98,15 @@ def test_mean_predictor_is_the_training_mean_and_scored_beside_the_model(evaluat
     gt = np.load(Path(evaluated[0]) / "predictions.npz")["gt"][:, 50:]
     err = np.degrees(np.linalg.norm(gt - expected, axis=-1))
     assert result["mean"]["metrics"]["mean_euclidean_error_deg_s"] == pytest.approx(err.mean())
+
+
+def test_training_validation_scores_the_saved_predictions_as_evaluate_did(evaluated):
+    out, result = evaluated
+    saved = np.load(out / "predictions.npz")
+    val = validation_metrics(saved["pred"], saved["gt"], result["data"]["eval_from_step"])
+    m = result["model"]["metrics"]
+    assert val["val_median_rel"] == m["median_relative_error"]
+    assert val["val_mean_err_deg"] == m["mean_euclidean_error_deg_s"]
 
 
 def test_metrics_per_scene_kind(evaluated):

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from spikegyro.errors import InputError
 from spikegyro.evaluate.offset import correlation, event_sample_times, fit_time_offset
-from spikegyro.evaluate.real import bin_means, event_windows, parse_gyro_offset, time_windows
+from spikegyro.evaluate.real import parse_gyro_offset
 from spikegyro.events.core import EventArray, GyroTrace, Recording
 from spikegyro.events.imu import (
     imu_rotation,
@@ -25,6 +25,7 @@ from spikegyro.events.imu import (
     window_means,
 )
 from spikegyro.events.io import write_gyro_txt, write_recording
+from spikegyro.events.windows import bin_means, event_windows, time_windows
 
 
 @pytest.mark.parametrize(

@@ -1,4 +1,5 @@
-"""``spikegyro demo``: events in, angular velocity out, with the shipped SNN-6, on a CPU.
+"""The demo behind ``spikegyro demo``: events in, angular velocity out, with the shipped SNN-6,
+on a CPU.
 
 The demo shows the main job on the bundled defaults in a few minutes:
 
@@ -27,12 +28,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-import typer
 from rich.console import Console
 from rich.table import Table
 
-from spikegyro.checks import check_output_dir
-from spikegyro.evaluate.commands import compare_runs, run_evaluation
+from spikegyro.evaluate.compare import compare_runs
+from spikegyro.evaluate.simulated import run_evaluation
 from spikegyro.events.io import atomic_path, write_recording
 from spikegyro.models.registry import PRETRAINED_SNN6
 from spikegyro.sim.commands import simulate_with_progress
@@ -276,34 +276,4 @@ def _print_summary(console: Console, summary: dict[str, Any], out: Path) -> None
         )
     console.print(
         f"reports: {out / 'report' / 'report.html'}, {out / 'evaluation-snn6' / 'report.html'}"
-    )
-
-
-def demo_command(
-    out: Path = typer.Option(DemoConfig.out, "--out", help="Output folder."),
-    test_sequences: int = typer.Option(
-        DemoConfig.test_sequences, min=1, help="Test sequences (five 100 ms windows each)."
-    ),
-    recording_s: float = typer.Option(
-        DemoConfig.recording_s, min=0.2, help="Length of the streamed recording, seconds."
-    ),
-    finetune_minutes: float = typer.Option(
-        DemoConfig.finetune_minutes,
-        min=0.0,
-        help="Also fine-tune the shipped weights on the CPU for this many minutes (0: skip).",
-    ),
-    seed: int = typer.Option(DemoConfig.seed, help="Seed of the simulated data."),
-    workers: int = typer.Option(DemoConfig.workers, min=1, help="Simulator processes."),
-) -> None:
-    """Events in, angular velocity out: score the shipped SNN-6, CMax and the mean, then stream."""
-    check_output_dir(out)
-    run_demo(
-        DemoConfig(
-            out=out,
-            test_sequences=test_sequences,
-            recording_s=recording_s,
-            finetune_minutes=finetune_minutes,
-            seed=seed,
-            workers=workers,
-        )
     )

@@ -1,14 +1,29 @@
 """Metrics, per-speed bins, figures and reports.
 
 ``run_evaluation`` scores a model and the mean predictor on a dataset split and writes
-metrics.json, predictions.npz, figures and a report; ``compare_runs`` puts several such runs side
-by side; ``run_real_evaluation`` scores SNN-6, CMax and the mean predictor against a gyro on a
-real recording (:mod:`.real`). The pure metric functions live in :mod:`.metrics` and
+metrics.json, predictions.npz, figures and a report (:mod:`.simulated`); ``compare_runs`` puts
+several such runs side by side; ``run_real_evaluation`` scores SNN-6, CMax and the mean
+predictor against a gyro on a real recording (:mod:`.real`). The pure metric functions live in
+:mod:`.metrics` (the one definition that evaluation, training validation and the tests use) and
 :mod:`.bins`, the gyro-events clock offset fit in :mod:`.offset`.
 """
 
-from spikegyro.evaluate.commands import run_evaluation
-from spikegyro.evaluate.compare import compare_runs
-from spikegyro.evaluate.real import run_real_evaluation
+from typing import Any
+
+_LAZY = {
+    "compare_runs": "spikegyro.evaluate.compare",
+    "run_evaluation": "spikegyro.evaluate.simulated",
+    "run_real_evaluation": "spikegyro.evaluate.real",
+}
 
 __all__ = ["compare_runs", "run_evaluation", "run_real_evaluation"]
+
+
+def __getattr__(name: str) -> Any:
+    # The drivers import torch, matplotlib and the models: imported on first use, so that
+    # `spikegyro.evaluate.metrics` (which training validation imports) stays light.
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'spikegyro.evaluate' has no attribute '{name}'")

@@ -88,3 +88,12 @@ def per_bin_metrics(
 def empty_bins(per_bin: list[dict[str, Any]]) -> list[str]:
     """Labels of the bins without any evaluated pair."""
     return [entry["label"] for entry in per_bin if entry["n_pairs"] == 0]
+
+
+def bins_json(edges: Sequence[float] = SPEED_BIN_EDGES_DEG_S) -> dict[str, list]:
+    """The bins as metrics.json records them: ``edges_deg_s`` (None for the open end, since
+    JSON has no infinity) and their ``labels``."""
+    return {
+        "edges_deg_s": [None if math.isinf(e) else e for e in edges],
+        "labels": bin_labels(edges),
+    }

@@ -35,31 +35,27 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import typer
 from rich.console import Console
 from rich.progress import Progress
 
 from spikegyro.baselines import cmax
 from spikegyro.baselines.mean import training_mean_omega
-from spikegyro.checks import check_input, check_output_dir, sensor_option
+from spikegyro.checks import check_input, check_output_dir
 from spikegyro.errors import InputError
 from spikegyro.evaluate import metrics
-from spikegyro.evaluate.bins import SPEED_BIN_EDGES_DEG_S, bin_labels, empty_bins, per_bin_metrics
+from spikegyro.evaluate.bins import bins_json, empty_bins, per_bin_metrics
 from spikegyro.evaluate.console import print_summary, write_json
 from spikegyro.evaluate.offset import event_sample_times, fit_time_offset
 from spikegyro.evaluate.real_report import write_figures, write_real_report, write_tables
-from spikegyro.evaluate.report import (
-    display_name,
-)
+from spikegyro.evaluate.report import display_name
 from spikegyro.events.calib import Calibration, resolve_calibration
 from spikegyro.events.core import EventArray, GyroTrace
 from spikegyro.events.imu import (
-    IMU_TO_CAMERA_HELP,
     covers,
     imu_rotation,
     rotate_gyro,
@@ -68,11 +64,11 @@ from spikegyro.events.imu import (
     window_means,
 )
 from spikegyro.events.io import atomic_dir, read_gyro, read_recording
+from spikegyro.events.windows import BIN_US, bin_means, event_windows, time_windows
 from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_streaming_model
 from spikegyro.stream.predict import WARMUP_STEPS, StreamPredictor, event_mapper, model_camera
 
 REAL_METRICS_FORMAT = "spikegyro-real-metrics/1"
-BIN_US = 1000
 DEFAULT_WINDOW_MS = 20.0
 SNN_CHUNK_MS = 20
 MIN_OFFSET_CORRELATION = 0.5
@@ -123,40 +119,6 @@ def parse_gyro_offset(text: str) -> float | None:
     if not math.isfinite(value):
         raise InputError(f"--gyro-offset '{text}': must be a finite number of milliseconds.")
     return value
-
-
-def time_windows(begin_us: int, end_us: int, length_us: float) -> tuple[np.ndarray, np.ndarray]:
-    """Consecutive whole windows ``[a, a + length)`` from ``begin_us`` up to ``end_us`` (µs)."""
-    count = int((end_us - begin_us) // length_us) if end_us > begin_us else 0
-    starts = begin_us + np.round(np.arange(count) * length_us).astype(np.int64)
-    ends = begin_us + np.round(np.arange(1, count + 1) * length_us).astype(np.int64)
-    return starts, ends
-
-
-def event_windows(
-    t_us: np.ndarray, begin_us: int, end_us: int, count: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Consecutive windows of exactly ``count`` events among those in ``[begin_us, end_us)``;
-    each spans from its first event's time to just after its last (µs)."""
-    i0, i1 = np.searchsorted(t_us, [begin_us, end_us], side="left")
-    firsts = np.arange(int(i0), int(i1) - count + 1, count, dtype=np.int64)
-    return t_us[firsts], t_us[firsts + count - 1] + 1
-
-
-def bin_means(
-    values: np.ndarray, t0_us: int, starts_us: np.ndarray, ends_us: np.ndarray
-) -> np.ndarray:
-    """Mean of a per-ms series over each ``[start, end)`` µs, each step k taken as constant over
-    ``[t0 + k ms, t0 + (k+1) ms)`` (overlap-weighted); (n, 3), the units of ``values``."""
-    cumulative = np.concatenate([np.zeros((1, 3)), np.cumsum(values, axis=0)])
-
-    def integral(t_us: np.ndarray) -> np.ndarray:
-        x = np.clip((np.asarray(t_us, dtype=np.float64) - t0_us) / BIN_US, 0, len(values))
-        k = np.minimum(np.floor(x).astype(np.int64), len(values) - 1)
-        return cumulative[k] + (x - k)[:, None] * values[k]
-
-    span = (np.asarray(ends_us, dtype=np.float64) - starts_us)[:, None] / BIN_US
-    return (integral(ends_us) - integral(starts_us)) / np.maximum(span, 1e-12)
 
 
 def _snn_per_ms(
@@ -259,6 +221,460 @@ def _window_results(window_pred: np.ndarray, window_gt: np.ndarray) -> dict[str,
     return {**m, "n_windows": m["n_pairs"]}
 
 
+@dataclass(frozen=True)
+class RealInputs:
+    """The files an ``evaluate-real`` run reads and writes (see :func:`run_real_evaluation`)."""
+
+    recording: Path
+    out_dir: Path
+    gyro: Path | None = None
+    calib: Path | None = None
+    intrinsics: tuple[float, float, float, float] | None = None
+    checkpoint: Path = DEFAULT_CHECKPOINT
+    imu_to_camera: str | None = None
+    mean_data: Path | None = None
+    sensor: tuple[int, int] | None = None
+
+
+@dataclass
+class RealPlan:
+    """A checked ``evaluate-real`` run, before any model runs.
+
+    Attributes:
+        offset_ms: the ``--gyro-offset`` to apply, ms (None: the fitted one).
+        rotation: IMU-to-camera rotation (None: the gyro is in the camera frame).
+        calib_label: where the calibration comes from, for metrics.json (None: none).
+        events: the events of the span, on the sensor's pixels.
+        camera: CMax's camera (the calibration, or intrinsics from the file's attributes).
+        raw_gyro: the gyro in the camera frame, before the clock offset.
+        t0, steps: the span starts at ``t0`` µs and has ``steps`` 1 ms steps.
+        ends: each step's end, µs (steps,).
+        w_starts, w_ends: the user's windows, µs.
+        warnings: what the run will report, in order.
+    """
+
+    inputs: RealInputs
+    config: RealEvalConfig
+    offset_ms: float | None
+    rotation: np.ndarray | None
+    calibration: Calibration | None
+    calib_label: str | None
+    events: EventArray
+    camera: Any
+    raw_gyro: GyroTrace
+    gyro_source: str
+    t0: int
+    steps: int
+    ends: np.ndarray
+    w_starts: np.ndarray
+    w_ends: np.ndarray
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def scored_from_us(self) -> int:
+        """Time of the end of the warm-up, µs: the first scored step starts here."""
+        return self.t0 + self.config.warmup_ms * BIN_US
+
+    @property
+    def window_events(self) -> np.ndarray:
+        """Number of events in each of the user's windows."""
+        t = self.events.t
+        return np.searchsorted(t, self.w_ends) - np.searchsorted(t, self.w_starts)
+
+
+@dataclass
+class RealPredictions:
+    """What the models answered.
+
+    Attributes:
+        per_ms: display name -> (method, omega per step (steps, 3) rad/s) of SNN-6, CMax and
+            the mean predictor, in that order.
+        payload: the SNN checkpoint's payload.
+        cmax_window: CMax's one estimate from each user window's events, (n, 3) rad/s.
+        offset_starts, offset_ends, offset_omega: CMax over short windows for the clock
+            offset fit (µs, µs, rad/s).
+        mean_omega, mean_source: the mean predictor's answer (3,) rad/s and where it is from.
+    """
+
+    per_ms: dict[str, tuple[str, np.ndarray]]
+    payload: dict[str, Any]
+    cmax_window: np.ndarray
+    offset_starts: np.ndarray
+    offset_ends: np.ndarray
+    offset_omega: np.ndarray
+    mean_omega: np.ndarray
+    mean_source: str
+
+
+@dataclass
+class GyroReference:
+    """The gyro as the reference: the offset fit, the shifted trace, its value at each step's
+    end (``gt``, rad/s), which steps are scored, and its mean over each scored window."""
+
+    fit: dict[str, Any]
+    applied_us: float
+    trace: GyroTrace
+    gt: np.ndarray
+    scored: np.ndarray
+    win_ok: np.ndarray
+    w_gt: np.ndarray
+
+
+def _check_config(config: RealEvalConfig) -> None:
+    if (config.windows_ms is None) == (config.windows_events is None):
+        raise InputError("give one of --windows-ms MS and --windows-events N.")
+    if config.end_s is not None and config.end_s <= config.start_s:
+        raise InputError(f"--end {config.end_s} s must be after --start {config.start_s} s.")
+    if config.start_s < 0 or config.warmup_ms < 0:
+        raise InputError("--start and --warmup-ms must not be negative.")
+
+
+def _span(t_us: np.ndarray, config: RealEvalConfig) -> tuple[int, int]:
+    """``(t0, steps)``: the span's start, µs (``--start`` after the first event's whole ms),
+    and its length in 1 ms steps (to ``--end`` or past the last event)."""
+    t_first = int(t_us[0]) // BIN_US * BIN_US
+    t0 = t_first + round(config.start_s * 1e6)
+    t_end = int(t_us[-1]) + 1 if config.end_s is None else t_first + round(config.end_s * 1e6)
+    return t0, -(-(t_end - t0) // BIN_US)
+
+
+def _user_windows(
+    events: EventArray, config: RealEvalConfig, begin_us: int, end_us: int, recording: Path
+) -> tuple[np.ndarray, np.ndarray]:
+    """The user's windows tiling ``[begin_us, end_us)``; InputError when none fits."""
+    if config.windows_events is not None:
+        starts, ends = event_windows(events.t, begin_us, end_us, config.windows_events)
+        size = f"{config.windows_events:,} events"
+    else:
+        starts, ends = time_windows(begin_us, end_us, config.windows_ms * 1000)
+        size = f"{config.windows_ms:g} ms"
+    if not len(starts):
+        raise InputError(
+            f"{recording}: no whole window of {size} after the {config.warmup_ms} ms warm-up; "
+            "choose smaller windows, a shorter --warmup-ms or a longer span."
+        )
+    return starts, ends
+
+
+def plan_real_evaluation(inputs: RealInputs, config: RealEvalConfig) -> RealPlan:
+    """Check every input and read the recording and the gyro; no model runs, nothing is written.
+
+    Raises:
+        InputError: on bad options, unreadable files, a span without events or windows, or a
+            gyro that cannot overlap the scored span.
+    """
+    recording = inputs.recording
+    check_output_dir(inputs.out_dir)
+    check_input(inputs.checkpoint, "--checkpoint")
+    _check_config(config)
+    offset_ms = parse_gyro_offset(config.gyro_offset)
+    rotation = None if inputs.imu_to_camera is None else imu_rotation(inputs.imu_to_camera)
+    calibration, calib_file = resolve_calibration(recording, inputs.calib, inputs.intrinsics)
+    rec = read_recording(recording, sensor=inputs.sensor)
+    if not len(rec.events):
+        raise InputError(f"{recording}: the file holds no events.")
+    raw_gyro, gyro_source = _load_gyro(rec.gyro, inputs.gyro, rotation)
+    t0, steps = _span(rec.events.t, config)
+    events = rec.events.slice_time(t0, t0 + steps * BIN_US)
+    if not len(events) or steps <= config.warmup_ms:
+        raise InputError(
+            f"{recording}: {len(events):,} events in {steps} ms between --start and --end; the "
+            f"span must be longer than the {config.warmup_ms} ms warm-up."
+        )
+    ends = t0 + BIN_US * np.arange(1, steps + 1, dtype=np.int64)
+    begin = t0 + config.warmup_ms * BIN_US
+    _check_overlap(raw_gyro, offset_ms, config, begin, ends[-1], gyro_source)
+    # CMax undistorts each event to its ray itself: it takes the raw events and the calibration.
+    camera = calibration or cmax.camera_from_attrs(rec.attrs, *events.sensor_size)
+    w_starts, w_ends = _user_windows(events, config, begin, t0 + steps * BIN_US, recording)
+    calib_label = str(calib_file) if calib_file else ("--intrinsics" if inputs.intrinsics else None)
+    return RealPlan(
+        inputs,
+        config,
+        offset_ms,
+        rotation,
+        calibration,
+        calib_label,
+        events,
+        camera,
+        raw_gyro,
+        gyro_source,
+        t0,
+        steps,
+        ends,
+        w_starts,
+        w_ends,
+    )
+
+
+def _mean_predictor(mean_data: Path | None) -> tuple[np.ndarray, str]:
+    if mean_data is None:
+        return np.zeros(3), "zero"
+    return training_mean_omega(mean_data, "train"), f"{mean_data}/train"
+
+
+def predict_real(plan: RealPlan, console: Console) -> RealPredictions:
+    """Run SNN-6 and CMax (per ms, per user window, and over short windows for the clock
+    offset fit) over the plan's span; the mean predictor's answer comes first (it may fail)."""
+    mean_omega, mean_source = _mean_predictor(plan.inputs.mean_data)
+    events, camera, config, t0 = plan.events, plan.camera, cmax.CMaxConfig(), plan.t0
+    offset_cfg = plan.config.offset
+    window_us = round(offset_cfg.window_ms * 1000)
+    off_ends = np.arange(
+        t0 + window_us, t0 + plan.steps * BIN_US + 1, offset_cfg.stride_ms * BIN_US
+    )
+    with Progress(console=console, transient=True) as bar:
+
+        def tracker(label: str) -> Any:
+            task = bar.add_task(label, total=None)
+            return lambda done, total: bar.update(task, completed=done, total=total)
+
+        snn, payload = _snn_per_ms(
+            events,
+            plan.inputs.checkpoint,
+            plan.calibration,
+            t0,
+            plan.steps,
+            str(plan.inputs.recording),
+            tracker("SNN-6"),
+        )
+        t_cmax, w_cmax = cmax.predict_stream(events, camera, config, progress=tracker("CMax"))
+        cmax_ms = cmax.per_ms(t_cmax, w_cmax, plan.ends)  # as `spikegyro baseline cmax` writes it
+        cmax_win = _cmax_windows(
+            events, camera, config, plan.w_starts, plan.w_ends, tracker("CMax per window")
+        )
+        # Independent windows: a warm-started stream lags fast changes (by ~2 ms at a 5 ms
+        # stride on simulated data), which would bias the offset.
+        w_off = _cmax_windows(
+            events,
+            camera,
+            config,
+            off_ends - window_us,
+            off_ends,
+            tracker("CMax for the clock offset"),
+        )
+    mean_ms = np.broadcast_to(mean_omega, (plan.steps, 3)).copy()
+    per_ms = {
+        display_name(payload): ("snn", snn),
+        "CMax": ("cmax", cmax_ms),
+        "Mean": ("mean", mean_ms),
+    }
+    return RealPredictions(
+        per_ms, payload, cmax_win, off_ends - window_us, off_ends, w_off, mean_omega, mean_source
+    )
+
+
+def _offset_warnings(fit: dict[str, Any], offset: OffsetConfig) -> list[str]:
+    if fit["offset_us"] is None:
+        return [f"no clock offset could be fitted: {fit['reason']}"]
+    if fit["correlation"] < MIN_OFFSET_CORRELATION:
+        return [
+            f"the estimates and the gyro hardly correlate at any offset (at best "
+            f"{fit['correlation']:.2f}): the motion does not vary enough for CMax over "
+            f"{offset.window_ms:g} ms to pin the clock offset down; do not apply it."
+        ]
+    if fit.get("at_edge"):
+        return [
+            f"the best clock offset lies at the edge of ±{offset.max_offset_ms:g} ms; the "
+            "true one may lie outside."
+        ]
+    return []
+
+
+def fit_reference(plan: RealPlan, predicted: RealPredictions) -> GyroReference:
+    """Fit the clock offset, apply the chosen one and sample the gyro at every step's end and
+    over every window; warnings go to the plan.
+
+    Raises:
+        InputError: when no step after the warm-up lies within the shifted gyro's span.
+    """
+    offset_cfg, warnings = plan.config.offset, plan.warnings
+    samples = event_sample_times(plan.events.t, predicted.offset_starts, predicted.offset_ends)
+    fit = fit_time_offset(
+        samples,
+        predicted.offset_omega,
+        plan.raw_gyro,
+        max_offset_us=offset_cfg.max_offset_ms * 1000,
+        step_us=offset_cfg.step_ms * 1000,
+    )
+    warnings += _offset_warnings(fit, offset_cfg)
+    if plan.offset_ms is not None:
+        applied_us = plan.offset_ms * 1000
+    elif fit["offset_us"] is not None:
+        applied_us = fit["offset_us"]
+    else:
+        applied_us = 0.0
+        warnings.append("--gyro-offset auto: no fit, so no offset is applied.")
+    trace = shift_gyro(plan.raw_gyro, applied_us)
+    warmup, ends = plan.config.warmup_ms, plan.ends
+    scored = (np.arange(plan.steps) >= warmup) & covers(trace, ends)
+    if not scored.any():
+        raise InputError(
+            f"{plan.gyro_source}: the gyro ({trace.t[0] / 1e6:.6f} to {trace.t[-1] / 1e6:.6f} s) "
+            f"does not cover the scored span ({plan.scored_from_us / 1e6:.6f} to "
+            f"{ends[-1] / 1e6:.6f} s on the events' clock)."
+        )
+    if (outside := int((~scored[warmup:]).sum())) > 0:
+        warnings.append(
+            f"{outside} steps after the warm-up lie outside the gyro's span and are not scored."
+        )
+    win_ok = covers(trace, plan.w_starts) & covers(trace, plan.w_ends)
+    if not win_ok.all():
+        warnings.append(f"{int((~win_ok).sum())} windows lie outside the gyro's span; left out.")
+    w_gt = window_means(trace, plan.w_starts, plan.w_ends)
+    return GyroReference(fit, applied_us, trace, trace.interpolate(ends), scored, win_ok, w_gt)
+
+
+def _score_models(
+    plan: RealPlan, predicted: RealPredictions, ref: GyroReference
+) -> tuple[dict[str, dict[str, Any]], dict[str, np.ndarray]]:
+    """Each model's per-ms and per-window metrics, and its mean over each window (rad/s)."""
+    models: dict[str, dict[str, Any]] = {}
+    window_pred: dict[str, np.ndarray] = {}
+    for name, (method, series) in predicted.per_ms.items():
+        models[name] = _method_results(name, method, series, ref.gt, ref.scored)
+        window_pred[name] = bin_means(series, plan.t0, plan.w_starts, plan.w_ends)
+    window_pred["CMax (window)"] = predicted.cmax_window
+    models["CMax (window)"] = {"name": "CMax (window)", "method": "cmax_window", "metrics": None}
+    for name, pred in window_pred.items():
+        models[name]["window_metrics"] = _window_results(pred[ref.win_ok], ref.w_gt[ref.win_ok])
+    snn_name = next(iter(predicted.per_ms))
+    models[snn_name]["source"] = str(plan.inputs.checkpoint)
+    models["Mean"]["omega_rad_s"] = predicted.mean_omega.tolist()
+    models["Mean"]["source"] = predicted.mean_source
+    return models, window_pred
+
+
+def _data_json(plan: RealPlan, ref: GyroReference) -> dict[str, Any]:
+    config, events, w_starts, w_ends = plan.config, plan.events, plan.w_starts, plan.w_ends
+    by_events = config.windows_events is not None
+    return {
+        "recording": str(plan.inputs.recording),
+        "calibration": plan.calib_label,
+        "sensor": list(events.sensor_size),
+        "t0_s": plan.t0 / 1e6,
+        "steps_ms": plan.steps,
+        "events": len(events),
+        "event_rate_per_s": len(events) / (plan.steps / 1000),
+        "warmup_ms": config.warmup_ms,
+        "scored_steps": int(ref.scored.sum()),
+        "windows": {
+            "by": "events" if by_events else "time",
+            "size": config.windows_events if by_events else config.windows_ms,
+            "count": len(w_starts),
+            "scored": int(ref.win_ok.sum()),
+            "start_s": (w_starts / 1e6).tolist(),
+            "end_s": (w_ends / 1e6).tolist(),
+            "events": plan.window_events.tolist(),
+        },
+    }
+
+
+def _gyro_json(plan: RealPlan, ref: GyroReference) -> dict[str, Any]:
+    raw = plan.raw_gyro
+    return {
+        "source": plan.gyro_source,
+        "samples": len(raw),
+        "span_s": [raw.t[0] / 1e6, raw.t[-1] / 1e6],
+        "sampling_interval": sampling_interval_us(raw),
+        "imu_to_camera": None if plan.rotation is None else plan.rotation.tolist(),
+        "offset_fit": ref.fit,
+        "offset_applied_us": float(ref.applied_us),
+        "offset_convention": "added to the gyro's timestamps: gyro(t - offset) is the "
+        "reference at event time t",
+    }
+
+
+@dataclass
+class RealScores:
+    """The scores: ``result`` (what metrics.json holds) and each model's mean over each user
+    window (rad/s, (n, 3), for windows.csv and the figures)."""
+
+    result: dict[str, Any]
+    window_pred: dict[str, np.ndarray]
+
+
+def score_real(plan: RealPlan, predicted: RealPredictions, ref: GyroReference) -> RealScores:
+    """Score every model against the gyro per ms and per window (:mod:`.metrics`)."""
+    models, window_pred = _score_models(plan, predicted, ref)
+    snn_name = next(iter(predicted.per_ms))
+    if empty := empty_bins(models[snn_name]["per_bin"]):
+        plan.warnings.append(
+            f"no scored step in speed bin(s) {', '.join(empty)} deg/s; left empty."
+        )
+    result = {
+        "format": REAL_METRICS_FORMAT,
+        "data": _data_json(plan, ref),
+        "gyro": _gyro_json(plan, ref),
+        "bins": bins_json(),
+        "models": models,
+        "windows_omega_rad_s": {
+            "gyro": ref.w_gt.tolist(),
+            **{name: pred.tolist() for name, pred in window_pred.items()},
+        },
+        "warnings": plan.warnings,
+    }
+    return RealScores(result, window_pred)
+
+
+def write_real(
+    plan: RealPlan, predicted: RealPredictions, ref: GyroReference, scores: RealScores
+) -> None:
+    """Write every output into the plan's folder at once (all or nothing)."""
+    result, window_pred = scores.result, scores.window_pred
+    with atomic_dir(plan.inputs.out_dir) as staging:
+        write_tables(
+            staging,
+            plan.ends,
+            ref.scored,
+            ref.gt,
+            predicted.per_ms,
+            plan.w_starts,
+            plan.w_ends,
+            plan.window_events,
+            ref.win_ok,
+            ref.w_gt,
+            window_pred,
+        )
+        write_json(staging / "metrics.json", result)
+        write_figures(
+            staging,
+            result,
+            plan.t0,
+            plan.ends,
+            predicted.per_ms,
+            ref.trace,
+            plan.w_starts,
+            plan.w_ends,
+            predicted.cmax_window,
+        )
+        write_real_report(staging, result)
+
+
+def _print_real_summary(
+    plan: RealPlan, ref: GyroReference, result: dict[str, Any], console: Console
+) -> None:
+    models, fit = result["models"], ref.fit
+    console_rows = [m for m in models.values() if m["metrics"] is not None]
+    print_summary(
+        console,
+        f"{plan.inputs.recording}: {int(ref.scored.sum())} steps, {int(ref.win_ok.sum())} windows",
+        [*console_rows, models["CMax (window)"] | {"metrics": {}}],
+        plan.warnings,
+        window_label="per window",
+        start_ms=plan.config.warmup_ms,
+    )
+    if fit["offset_us"] is not None:
+        console.print(
+            f"gyro sampled every {result['gyro']['sampling_interval']['median_us'] / 1000:.3f} "
+            f"ms; best clock offset {fit['offset_us'] / 1000:+.2f} ms (correlation "
+            f"{fit['correlation']:.3f}), applied {ref.applied_us / 1000:+.2f} ms"
+        )
+    console.print(
+        f"wrote {plan.inputs.out_dir}/metrics.json, predictions.csv, windows.csv, report.html"
+    )
+
+
 def run_real_evaluation(
     recording: str | os.PathLike,
     out_dir: str | os.PathLike,
@@ -273,7 +689,9 @@ def run_real_evaluation(
     sensor: tuple[int, int] | None = None,
     console: Console | None = None,
 ) -> dict[str, Any]:
-    """Score SNN-6, CMax and the mean predictor against a gyro on a real recording.
+    """Score SNN-6, CMax and the mean predictor against a gyro on a real recording: plan
+    (:func:`plan_real_evaluation`), predict (:func:`predict_real`), score
+    (:func:`fit_reference`, :func:`score_real`) and write (:func:`write_real`).
 
     Args:
         recording: an event file or Event Camera Dataset folder (``spikegyro.events.io``).
@@ -291,312 +709,26 @@ def run_real_evaluation(
     Returns:
         The dict written to ``metrics.json``.
     """
-    config = config or RealEvalConfig()
     console = console or Console(stderr=True)
-    recording, out_dir = Path(recording), check_output_dir(out_dir)
-    checkpoint = Path(checkpoint) if checkpoint is not None else DEFAULT_CHECKPOINT
-    check_input(checkpoint, "--checkpoint")
-    if (config.windows_ms is None) == (config.windows_events is None):
-        raise InputError("give one of --windows-ms MS and --windows-events N.")
-    if config.end_s is not None and config.end_s <= config.start_s:
-        raise InputError(f"--end {config.end_s} s must be after --start {config.start_s} s.")
-    if config.start_s < 0 or config.warmup_ms < 0:
-        raise InputError("--start and --warmup-ms must not be negative.")
-    offset_ms = parse_gyro_offset(config.gyro_offset)
-    rotation = None if imu_to_camera is None else imu_rotation(imu_to_camera)
-    calibration, calib_file = resolve_calibration(recording, calib, intrinsics)
-    rec = read_recording(recording, sensor=sensor)
-    if not len(rec.events):
-        raise InputError(f"{recording}: the file holds no events.")
-    raw_gyro, gyro_source = _load_gyro(rec.gyro, Path(gyro) if gyro else None, rotation)
-    warnings: list[str] = []
 
-    t_first = int(rec.events.t[0]) // BIN_US * BIN_US
-    t0 = t_first + round(config.start_s * 1e6)
-    t_end = (
-        int(rec.events.t[-1]) + 1 if config.end_s is None else t_first + round(config.end_s * 1e6)
+    def path(value: str | os.PathLike | None) -> Path | None:
+        return None if value is None or value == "" else Path(value)
+
+    inputs = RealInputs(
+        Path(recording),
+        Path(out_dir),
+        path(gyro),
+        path(calib),
+        intrinsics,
+        path(checkpoint) or DEFAULT_CHECKPOINT,
+        imu_to_camera,
+        path(mean_data),
+        sensor,
     )
-    steps = -(-(t_end - t0) // BIN_US)
-    events = rec.events.slice_time(t0, t0 + steps * BIN_US)
-    if not len(events) or steps <= config.warmup_ms:
-        raise InputError(
-            f"{recording}: {len(events):,} events in {steps} ms between --start and --end; the "
-            f"span must be longer than the {config.warmup_ms} ms warm-up."
-        )
-    ends = t0 + BIN_US * np.arange(1, steps + 1, dtype=np.int64)
-    _check_overlap(
-        raw_gyro, offset_ms, config, t0 + config.warmup_ms * BIN_US, ends[-1], gyro_source
-    )
-    width, height = events.sensor_size
-    # CMax undistorts each event to its ray itself: it takes the raw events and the calibration.
-    camera = calibration or cmax.camera_from_attrs(rec.attrs, width, height)
-    cmax_config = cmax.CMaxConfig()
-
-    # The user's windows, tiled from the end of the warm-up.
-    begin = t0 + config.warmup_ms * BIN_US
-    if config.windows_events is not None:
-        w_starts, w_ends = event_windows(
-            events.t, begin, t0 + steps * BIN_US, config.windows_events
-        )
-    else:
-        w_starts, w_ends = time_windows(begin, t0 + steps * BIN_US, config.windows_ms * 1000)
-    if not len(w_starts):
-        size = (
-            f"{config.windows_events:,} events"
-            if config.windows_events is not None
-            else f"{config.windows_ms:g} ms"
-        )
-        raise InputError(
-            f"{recording}: no whole window of {size} after the {config.warmup_ms} ms warm-up; "
-            "choose smaller windows, a shorter --warmup-ms or a longer span."
-        )
-
-    offset_cfg = config.offset
-    with Progress(console=console, transient=True) as bar:
-
-        def tracker(label: str) -> Any:
-            task = bar.add_task(label, total=None)
-            return lambda done, total: bar.update(task, completed=done, total=total)
-
-        snn, payload = _snn_per_ms(
-            events, checkpoint, calibration, t0, steps, str(recording), tracker("SNN-6")
-        )
-        t_cmax, w_cmax = cmax.predict_stream(events, camera, cmax_config, progress=tracker("CMax"))
-        cmax_ms = cmax.per_ms(t_cmax, w_cmax, ends)  # as `spikegyro baseline cmax` writes it
-        cmax_win = _cmax_windows(
-            events, camera, cmax_config, w_starts, w_ends, tracker("CMax per window")
-        )
-        # Independent windows: a warm-started stream lags fast changes (by ~2 ms at a 5 ms
-        # stride on simulated data), which would bias the offset.
-        window_us = round(offset_cfg.window_ms * 1000)
-        off_ends = np.arange(t0 + window_us, t0 + steps * BIN_US + 1, offset_cfg.stride_ms * BIN_US)
-        w_off = _cmax_windows(
-            events,
-            camera,
-            cmax_config,
-            off_ends - window_us,
-            off_ends,
-            tracker("CMax for the clock offset"),
-        )
-    fit = fit_time_offset(
-        event_sample_times(events.t, off_ends - window_us, off_ends),
-        w_off,
-        raw_gyro,
-        max_offset_us=offset_cfg.max_offset_ms * 1000,
-        step_us=offset_cfg.step_ms * 1000,
-    )
-    if fit["offset_us"] is None:
-        warnings.append(f"no clock offset could be fitted: {fit['reason']}")
-    elif fit["correlation"] < MIN_OFFSET_CORRELATION:
-        warnings.append(
-            f"the estimates and the gyro hardly correlate at any offset (at best "
-            f"{fit['correlation']:.2f}): the motion does not vary enough for CMax over "
-            f"{offset_cfg.window_ms:g} ms to pin the clock offset down; do not apply it."
-        )
-    elif fit.get("at_edge"):
-        warnings.append(
-            f"the best clock offset lies at the edge of ±{offset_cfg.max_offset_ms:g} ms; the "
-            "true one may lie outside."
-        )
-    if offset_ms is None:
-        applied_us = fit["offset_us"] if fit["offset_us"] is not None else 0.0
-        if fit["offset_us"] is None:
-            warnings.append("--gyro-offset auto: no fit, so no offset is applied.")
-    else:
-        applied_us = offset_ms * 1000
-    trace = shift_gyro(raw_gyro, applied_us)
-
-    gt = trace.interpolate(ends)
-    step_index = np.arange(steps)
-    scored = (step_index >= config.warmup_ms) & covers(trace, ends)
-    if not scored.any():
-        raise InputError(
-            f"{gyro_source}: the gyro ({trace.t[0] / 1e6:.6f} to {trace.t[-1] / 1e6:.6f} s) does "
-            f"not cover the scored span ({(t0 + config.warmup_ms * BIN_US) / 1e6:.6f} to "
-            f"{ends[-1] / 1e6:.6f} s on the events' clock)."
-        )
-    if (~scored[config.warmup_ms :]).any():
-        warnings.append(
-            f"{int((~scored[config.warmup_ms :]).sum())} steps after the warm-up lie outside the "
-            "gyro's span and are not scored."
-        )
-    win_ok = covers(trace, w_starts) & covers(trace, w_ends)
-    if not win_ok.all():
-        warnings.append(f"{int((~win_ok).sum())} windows lie outside the gyro's span; left out.")
-    w_gt = window_means(trace, w_starts, w_ends)
-
-    if mean_data is not None:
-        mean_omega, mean_source = training_mean_omega(mean_data, "train"), f"{mean_data}/train"
-    else:
-        mean_omega, mean_source = np.zeros(3), "zero"
-    mean_ms = np.broadcast_to(mean_omega, (steps, 3)).copy()
-
-    snn_name = display_name(payload)
-    per_ms = {snn_name: ("snn", snn), "CMax": ("cmax", cmax_ms), "Mean": ("mean", mean_ms)}
-    models: dict[str, dict[str, Any]] = {}
-    window_pred: dict[str, np.ndarray] = {}
-    for name, (method, series) in per_ms.items():
-        models[name] = _method_results(name, method, series, gt, scored)
-        window_pred[name] = bin_means(series, t0, w_starts, w_ends)
-    window_pred["CMax (window)"] = cmax_win
-    models["CMax (window)"] = {"name": "CMax (window)", "method": "cmax_window", "metrics": None}
-    for name, pred in window_pred.items():
-        models[name]["window_metrics"] = _window_results(pred[win_ok], w_gt[win_ok])
-    models[snn_name]["source"] = str(checkpoint)
-    models["Mean"]["omega_rad_s"] = mean_omega.tolist()
-    models["Mean"]["source"] = mean_source
-    empty = empty_bins(models[snn_name]["per_bin"])
-    if empty:
-        warnings.append(f"no scored step in speed bin(s) {', '.join(empty)} deg/s; left empty.")
-
-    num_events = np.searchsorted(events.t, w_ends) - np.searchsorted(events.t, w_starts)
-    result = {
-        "format": REAL_METRICS_FORMAT,
-        "data": {
-            "recording": str(recording),
-            "calibration": str(calib_file)
-            if calib_file
-            else ("--intrinsics" if intrinsics else None),
-            "sensor": [width, height],
-            "t0_s": t0 / 1e6,
-            "steps_ms": steps,
-            "events": len(events),
-            "event_rate_per_s": len(events) / (steps / 1000),
-            "warmup_ms": config.warmup_ms,
-            "scored_steps": int(scored.sum()),
-            "windows": {
-                "by": "events" if config.windows_events is not None else "time",
-                "size": config.windows_events
-                if config.windows_events is not None
-                else config.windows_ms,
-                "count": len(w_starts),
-                "scored": int(win_ok.sum()),
-                "start_s": (w_starts / 1e6).tolist(),
-                "end_s": (w_ends / 1e6).tolist(),
-                "events": num_events.tolist(),
-            },
-        },
-        "gyro": {
-            "source": gyro_source,
-            "samples": len(raw_gyro),
-            "span_s": [raw_gyro.t[0] / 1e6, raw_gyro.t[-1] / 1e6],
-            "sampling_interval": sampling_interval_us(raw_gyro),
-            "imu_to_camera": None if rotation is None else rotation.tolist(),
-            "offset_fit": fit,
-            "offset_applied_us": float(applied_us),
-            "offset_convention": "added to the gyro's timestamps: gyro(t - offset) is the "
-            "reference at event time t",
-        },
-        "bins": {
-            "edges_deg_s": [None if math.isinf(e) else e for e in SPEED_BIN_EDGES_DEG_S],
-            "labels": bin_labels(),
-        },
-        "models": models,
-        "windows_omega_rad_s": {
-            "gyro": w_gt.tolist(),
-            **{name: pred.tolist() for name, pred in window_pred.items()},
-        },
-        "warnings": warnings,
-    }
-    with atomic_dir(out_dir) as staging:
-        write_tables(staging, ends, scored, gt, per_ms, w_starts, w_ends, num_events, win_ok,
-                     w_gt, window_pred)  # fmt: skip
-        write_json(staging / "metrics.json", result)
-        write_figures(staging, result, t0, ends, per_ms, trace, w_starts, w_ends, cmax_win)
-        write_real_report(staging, result)
-    print_summary(
-        console,
-        f"{recording}: {int(scored.sum())} steps, {int(win_ok.sum())} windows",
-        [m for m in models.values() if m["metrics"] is not None]
-        + [models["CMax (window)"] | {"metrics": {}}],
-        warnings,
-        window_label="per window",
-        start_ms=config.warmup_ms,
-    )
-    if fit["offset_us"] is not None:
-        console.print(
-            f"gyro sampled every {result['gyro']['sampling_interval']['median_us'] / 1000:.3f} "
-            f"ms; best clock offset {fit['offset_us'] / 1000:+.2f} ms (correlation "
-            f"{fit['correlation']:.3f}), applied {applied_us / 1000:+.2f} ms"
-        )
-    console.print(f"wrote {out_dir}/metrics.json, predictions.csv, windows.csv, report.html")
-    return result
-
-
-def evaluate_real(
-    recording: Path = typer.Argument(
-        ..., help="Event file: .h5/.hdf5, .npz, events.txt (t x y p) or an ECD folder."
-    ),
-    out: Path = typer.Option(..., "--out", help="Output folder."),
-    gyro: Path = typer.Option(
-        None,
-        "--gyro",
-        help="Gyro file: ECD imu.txt 't ax ay az gx gy gz' or 't wx wy wz' (rad/s, seconds); "
-        "default the recording's own.",
-    ),
-    calib: Path = typer.Option(
-        None,
-        "--calib",
-        help="Sensor calibration 'fx fy cx cy k1 k2 p1 p2 k3' (ECD calib.txt; taken from an ECD "
-        "folder by default).",
-    ),
-    intrinsics: tuple[float, float, float, float] = typer.Option(
-        None, "--intrinsics", help="Sensor pinhole intrinsics fx fy cx cy (pixels), no distortion."
-    ),
-    checkpoint: Path = typer.Option(
-        None, "--checkpoint", help="SNN checkpoint (default: the shipped pretrained SNN-6)."
-    ),
-    windows_ms: float = typer.Option(
-        None,
-        "--windows-ms",
-        min=0.001,
-        help=f"Windows by time, ms (default {DEFAULT_WINDOW_MS:g}).",
-    ),
-    windows_events: int = typer.Option(
-        None, "--windows-events", min=1, help="Windows by event count instead of by time."
-    ),
-    start: float = typer.Option(0.0, "--start", help="Start, seconds after the first event."),
-    end: float = typer.Option(None, "--end", help="End, seconds after the first event."),
-    warmup_ms: int = typer.Option(
-        WARMUP_STEPS, "--warmup-ms", min=0, help="Steps (ms) after --start that are not scored."
-    ),
-    imu_to_camera: str = typer.Option(None, "--imu-to-camera", help=IMU_TO_CAMERA_HELP),
-    gyro_offset: str = typer.Option(
-        "0",
-        "--gyro-offset",
-        help="Milliseconds added to the gyro's timestamps, or 'auto' for the best fit "
-        "(always reported).",
-    ),
-    max_offset_ms: float = typer.Option(
-        OffsetConfig.max_offset_ms, "--max-offset-ms", min=0.5, help="Clock offsets searched, ±ms."
-    ),
-    mean_data: Path = typer.Option(
-        None, "--mean-data", help="Dataset whose training mean the mean predictor answers (else 0)."
-    ),
-    width: int = typer.Option(None, help="Sensor width, pixels (text files default to 240)."),
-    height: int = typer.Option(None, help="Sensor height, pixels (text files default to 180)."),
-) -> None:
-    """Score SNN-6, CMax and the mean predictor against a gyro on a real recording."""
-    config = RealEvalConfig(
-        windows_ms=DEFAULT_WINDOW_MS
-        if windows_ms is None and windows_events is None
-        else windows_ms,
-        windows_events=windows_events,
-        start_s=start,
-        end_s=end,
-        warmup_ms=warmup_ms,
-        gyro_offset=gyro_offset,
-        offset=replace(OffsetConfig(), max_offset_ms=max_offset_ms),
-    )
-    run_real_evaluation(
-        recording,
-        out,
-        gyro=gyro,
-        calib=calib,
-        intrinsics=intrinsics,
-        checkpoint=checkpoint,
-        imu_to_camera=imu_to_camera,
-        mean_data=mean_data,
-        config=config,
-        sensor=sensor_option(width, height),
-    )
+    plan = plan_real_evaluation(inputs, config or RealEvalConfig())
+    predicted = predict_real(plan, console)
+    reference = fit_reference(plan, predicted)
+    scores = score_real(plan, predicted, reference)
+    write_real(plan, predicted, reference, scores)
+    _print_real_summary(plan, reference, scores.result, console)
+    return scores.result

@@ -22,8 +22,8 @@ from spikegyro.evaluate.report import (
 )
 from spikegyro.events.core import GyroTrace
 from spikegyro.events.io import atomic_path, recording_name
+from spikegyro.events.windows import BIN_US
 
-BIN_US = 1000
 _REPORT_WINDOW_ROWS = 40
 
 
@@ -149,9 +149,25 @@ def _window_table(result: dict[str, Any]) -> Table:
     )
 
 
-def write_real_report(out_dir: Path, result: dict[str, Any]) -> None:
-    data, gyro, models = result["data"], result["gyro"], result["models"]
+def _offset_text(gyro: dict[str, Any]) -> str:
+    """The clock offset fit in words: the best offset and how sure it is, and what is applied."""
     fit = gyro["offset_fit"]
+    if fit["offset_us"] is None:
+        return f"No clock offset could be fitted: {fit['reason']}"
+    return (
+        f"Best clock offset: {fit['offset_us'] / 1000:+.2f} ms (normalised cross-correlation "
+        f"{fit['correlation']:.3f}, at 0 ms {fit['correlation_at_zero']:.3f}; "
+        f"{fit['n_estimates']} CMax estimates over {fit['step_us'] / 1000:g} ms steps of "
+        f"±{fit['max_offset_us'] / 1000:g} ms). Applied: "
+        f"{gyro['offset_applied_us'] / 1000:+.2f} ms. Apply the best fit with --gyro-offset "
+        "auto, or any value with --gyro-offset MS (added to the gyro's timestamps)."
+    )
+
+
+def write_real_report(out_dir: Path, result: dict[str, Any]) -> None:
+    """report.html and report.md from ``result`` (metrics.json's content) and the figures
+    already in ``out_dir``."""
+    data, gyro, models = result["data"], result["gyro"], result["models"]
     win = data["windows"]
     per_ms_models = {n: m for n, m in models.items() if m["metrics"] is not None}
     snn_name = next(n for n, m in models.items() if m["method"] == "snn")
@@ -163,17 +179,6 @@ def write_real_report(out_dir: Path, result: dict[str, Any]) -> None:
         else "rotated into the camera frame by R = "
         + str(np.round(np.array(gyro["imu_to_camera"]), 4).tolist())
     )
-    if fit["offset_us"] is not None:
-        offset_text = (
-            f"Best clock offset: {fit['offset_us'] / 1000:+.2f} ms (normalised cross-correlation "
-            f"{fit['correlation']:.3f}, at 0 ms {fit['correlation_at_zero']:.3f}; "
-            f"{fit['n_estimates']} CMax estimates over {fit['step_us'] / 1000:g} ms steps of "
-            f"±{fit['max_offset_us'] / 1000:g} ms). Applied: "
-            f"{gyro['offset_applied_us'] / 1000:+.2f} ms. Apply the best fit with --gyro-offset "
-            "auto, or any value with --gyro-offset MS (added to the gyro's timestamps)."
-        )
-    else:
-        offset_text = f"No clock offset could be fitted: {fit['reason']}"
     blocks: list[Block] = [
         f"Recording: {data['recording']} ({data['sensor'][0]}x{data['sensor'][1]}, calibration "
         f"{data['calibration'] or 'none: the simulator pinhole'}), {data['events']:,} events over "
@@ -191,7 +196,7 @@ def write_real_report(out_dir: Path, result: dict[str, Any]) -> None:
         "estimate from all the events of each window.",
         *[f"Warning: {w}" for w in result["warnings"]],
         "## Clock offset between gyro and events",
-        offset_text,
+        _offset_text(gyro),
     ]
     if (out_dir / "offset.png").exists():
         blocks.append(

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from spikegyro.events.core import EventArray
+from spikegyro.events.windows import time_windows
 
 IEI_EDGES_US = np.logspace(0, 6, 61)
 """Inter-event interval bins: 1 µs to 1 s, 10 per decade."""
@@ -172,7 +173,8 @@ def split_windows(events: EventArray, window_us: int) -> list[tuple[EventArray, 
     span = int(events.t[-1]) - t0 + 1
     if span <= window_us:
         return [(events, span)]
+    starts, ends = time_windows(t0, t0 + span, window_us)
     return [
-        (events.slice_time(t0 + k * window_us, t0 + (k + 1) * window_us), window_us)
-        for k in range(span // window_us)
+        (events.slice_time(a, b), window_us)
+        for a, b in zip(starts.tolist(), ends.tolist(), strict=True)
     ]

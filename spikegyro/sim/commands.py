@@ -70,51 +70,80 @@ def _weights(text: str) -> tuple[float, ...]:
         ) from None
 
 
+def _check_sim_options(
+    contrast_mean: float,
+    fx: float | None,
+    fy: float | None,
+    compression: str,
+    panoramas: Path | None,
+    sensor: str,
+) -> None:
+    """What Typer's ranges cannot say about ``simulate``'s options; before anything is written."""
+    if not contrast_mean > 0:
+        raise InputError(f"--contrast-mean {contrast_mean}: a contrast threshold must be > 0.")
+    for option, value in (("--fx", fx), ("--fy", fy)):
+        if value is not None and not value > 0:
+            raise InputError(f"{option} {value}: a focal length must be positive (pixels).")
+    if compression not in ("none", "lzf", "gzip"):
+        raise InputError(f"--compression {compression}: use none, lzf or gzip.")
+    if panoramas is not None and not panoramas.is_dir():
+        raise InputError(f"{panoramas}: --panoramas must be a folder of images.")
+    sensor_preset(sensor)  # rejects unknown names
+
+
+# Options of `simulate` whose definitions span lines, kept here so the command reads as a list.
+_PANORAMAS = typer.Option(
+    None, "--panoramas", help="Folder of equirectangular images (default: bundled 12)."
+)
+_SCHEDULER = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://host:8786.")
+_PROCEDURAL_FRACTION = typer.Option(
+    0.3, min=0.0, max=1.0, help="Share of sequences on procedural panoramas."
+)
+_DETAIL = typer.Option(0.4, min=0.0, help="Log-intensity std of the texture added to photographs.")
+_COMPRESSION = typer.Option(
+    "none", help="HDF5 compression: none, lzf (~2x smaller) or gzip (~3.5x, slower)."
+)
+_SENSOR = typer.Option(
+    "ideal",
+    "--sensor",
+    help=f"Sensor preset: {', '.join(SENSOR_PRESETS)}. 'ideal' is the paper's simulator "
+    "(the options below); 'davis240c' draws thresholds, noise, hot pixels, bandwidth, lens "
+    "and the scene mix per sequence (docs/simulator.md) and ignores the threshold, "
+    "noise, --procedural-fraction and --detail options.",
+)
+_SCENE_MIX = typer.Option(
+    None,
+    "--scene-mix",
+    help="With a sensor preset: weights of the scene kinds sparse,office,photo,procedural "
+    "(e.g. 0.4,0.25,0.2,0.15) instead of the preset's.",
+)
+_SLOW_SHARE = typer.Option(
+    0.0,
+    "--slow-share",
+    min=0.0,
+    max=1.0,
+    help="Share of sequences moving like a handheld camera or robot (slow, smooth).",
+)
+_SLOW_SPEED = typer.Option(
+    (5.0, 100.0), "--slow-speed", help="Their speed range MIN MAX, deg/s (log-uniform)."
+)
+
+
 def simulate_dataset(
     out: Path = typer.Option(..., "--out", help="Dataset folder (created; resumed if present)."),
     sequences: int = typer.Option(..., "--sequences", min=1, help="Sequences over all splits."),
     duration_ms: int = typer.Option(500, "--duration-ms", min=100, help="Sequence length, ms."),
     seed: int = typer.Option(0, "--seed", help="Dataset seed; same seed, same files."),
-    panoramas: Path = typer.Option(
-        None, "--panoramas", help="Folder of equirectangular images (default: bundled 12)."
-    ),
+    panoramas: Path = _PANORAMAS,
     workers: int = typer.Option(1, "--workers", min=1, help="Local worker processes."),
-    scheduler: str = typer.Option(
-        None, "--scheduler", help="Dask scheduler address, e.g. tcp://host:8786."
-    ),
-    procedural_fraction: float = typer.Option(
-        0.3, min=0.0, max=1.0, help="Share of sequences on procedural panoramas."
-    ),
-    detail: float = typer.Option(
-        0.4, min=0.0, help="Log-intensity std of the texture added to photographs."
-    ),
-    compression: str = typer.Option(
-        "none", help="HDF5 compression: none, lzf (~2x smaller) or gzip (~3.5x, slower)."
-    ),
-    sensor: str = typer.Option(
-        "ideal",
-        "--sensor",
-        help=f"Sensor preset: {', '.join(SENSOR_PRESETS)}. 'ideal' is the paper's simulator "
-        "(the options below); 'davis240c' draws thresholds, noise, hot pixels, bandwidth, lens "
-        "and the scene mix per sequence (docs/simulator.md) and ignores the threshold, "
-        "noise, --procedural-fraction and --detail options.",
-    ),
-    scene_mix: str = typer.Option(
-        None,
-        "--scene-mix",
-        help="With a sensor preset: weights of the scene kinds sparse,office,photo,procedural "
-        "(e.g. 0.4,0.25,0.2,0.15) instead of the preset's.",
-    ),
-    slow_share: float = typer.Option(
-        0.0,
-        "--slow-share",
-        min=0.0,
-        max=1.0,
-        help="Share of sequences moving like a handheld camera or robot (slow, smooth).",
-    ),
-    slow_speed: tuple[float, float] = typer.Option(
-        (5.0, 100.0), "--slow-speed", help="Their speed range MIN MAX, deg/s (log-uniform)."
-    ),
+    scheduler: str = _SCHEDULER,
+    procedural_fraction: float = _PROCEDURAL_FRACTION,
+    detail: float = _DETAIL,
+    compression: str = _COMPRESSION,
+    sensor: str = _SENSOR,
+    scene_mix: str = _SCENE_MIX,
+    slow_share: float = _SLOW_SHARE,
+    slow_speed: tuple[float, float] = _SLOW_SPEED,
     contrast_mean: float = typer.Option(0.45, help="Mean contrast threshold (log units, > 0)."),
     contrast_std: float = typer.Option(0.05, min=0.0, help="Per-sequence threshold spread."),
     mismatch_std: float = typer.Option(0.03, min=0.0, help="Per-pixel threshold std."),
@@ -131,16 +160,7 @@ def simulate_dataset(
 ) -> None:
     """Simulate a dataset of rotating-event-camera sequences with exact angular velocity."""
     check_output_dir(out)
-    if not contrast_mean > 0:
-        raise InputError(f"--contrast-mean {contrast_mean}: a contrast threshold must be > 0.")
-    for option, value in (("--fx", fx), ("--fy", fy)):
-        if value is not None and not value > 0:
-            raise InputError(f"{option} {value}: a focal length must be positive (pixels).")
-    if compression not in ("none", "lzf", "gzip"):
-        raise InputError(f"--compression {compression}: use none, lzf or gzip.")
-    if panoramas is not None and not panoramas.is_dir():
-        raise InputError(f"{panoramas}: --panoramas must be a folder of images.")
-    sensor_preset(sensor)  # rejects unknown names before anything is written
+    _check_sim_options(contrast_mean, fx, fy, compression, panoramas, sensor)
     config = SimConfig(
         duration_ms=duration_ms,
         camera=_camera(width, height, fx, fy, cx, cy),

@@ -208,6 +208,34 @@ def _noise_events(
     return tuple(np.concatenate(a) for a in zip(*parts, strict=True))  # type: ignore[return-value]
 
 
+def _with_noise(
+    signal: tuple[np.ndarray, np.ndarray, np.ndarray],
+    config: EventSimConfig,
+    sensor: SensorParams | None,
+    num_pixels: int,
+    duration_s: float,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The signal events ``(pix, t_us, pol)`` merged in time order (stable: signal first at
+    equal times) with the noise events of ``config`` and, for a drawn sensor, its hot pixels'.
+
+    The noise is drawn from ``rng`` before the hot pixels, so a seed gives the same events.
+    """
+    pix, t_us, pol = signal
+    noise_pix, noise_t, noise_pol = _noise_events(config, num_pixels, duration_s, rng)
+    if sensor is not None:
+        hot_pix, hot_t, hot_pol = hot_pixel_events(sensor, num_pixels, duration_s, rng)
+        noise_pix = np.concatenate([noise_pix, hot_pix])
+        noise_t = np.concatenate([noise_t, hot_t])
+        noise_pol = np.concatenate([noise_pol, hot_pol])
+    if noise_pix.size:
+        pix, pol = np.concatenate([pix, noise_pix]), np.concatenate([pol, noise_pol])
+        t_us = np.concatenate([t_us, np.rint(noise_t * 1e6).astype(np.int64)])
+        order = np.argsort(t_us, kind="stable")
+        pix, t_us, pol = pix[order], t_us[order], pol[order]
+    return pix, t_us, pol
+
+
 def simulate(
     panorama: Panorama,
     trajectory: Trajectory,
@@ -263,18 +291,7 @@ def simulate(
         chunk = times[i : i + config.chunk_frames]
         frames = renderer.render_log(trajectory.rotation_at(chunk)).reshape(chunk.size, -1)
         gen.push(frames if lowpass is None else lowpass(frames, chunk), chunk)
-    pix, t_us, pol = gen.collect()
-    noise_pix, noise_t, noise_pol = _noise_events(config, first.size, duration_s, rng)
-    if sensor is not None:
-        hot_pix, hot_t, hot_pol = hot_pixel_events(sensor, first.size, duration_s, rng)
-        noise_pix = np.concatenate([noise_pix, hot_pix])
-        noise_t = np.concatenate([noise_t, hot_t])
-        noise_pol = np.concatenate([noise_pol, hot_pol])
-    if noise_pix.size:
-        pix, pol = np.concatenate([pix, noise_pix]), np.concatenate([pol, noise_pol])
-        t_us = np.concatenate([t_us, np.rint(noise_t * 1e6).astype(np.int64)])
-        order = np.argsort(t_us, kind="stable")
-        pix, t_us, pol = pix[order], t_us[order], pol[order]
+    pix, t_us, pol = _with_noise(gen.collect(), config, sensor, first.size, duration_s, rng)
     y, x = np.divmod(pix, camera.width)
     events = EventArray.from_arrays(x, y, t_us, pol, camera.width, camera.height, validate=False)
     gyro_t = np.rint(np.arange(round(duration_s * 1000) + 1) * 1000.0).astype(np.int64)

@@ -3,8 +3,12 @@ validation metrics a run logs."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
+
+from spikegyro.evaluate import metrics
 
 
 def euclidean_error(prediction: torch.Tensor, target: torch.Tensor, dim: int) -> torch.Tensor:
@@ -39,15 +43,20 @@ def validation_metrics(
 ) -> dict[str, float]:
     """Loss and the paper's headline numbers on (n, T, 3) rad/s arrays, steps >= start_step.
 
-    ``val_median_rel`` is the median of ‖ω − ω̂‖/‖ω̂‖ over (window, step) pairs with
-    ‖ω̂‖ >= 1 deg/s; ``val_mean_err_deg`` the mean Euclidean error in deg/s (the paper's "RMSE").
+    The numbers are :mod:`spikegyro.evaluate.metrics`'s, so validation and ``spikegyro
+    evaluate`` agree: ``val_median_rel`` is
+    :func:`~spikegyro.evaluate.metrics.median_relative_error` (NaN when no true speed reaches
+    1 deg/s), ``val_mean_err_deg`` the mean Euclidean error in deg/s (the paper's "RMSE") and
+    ``val_loss`` the same in rad/s (the training loss's unit).
+    A diverged model (a non-finite prediction) scores NaN throughout, which never counts as
+    the best validation.
     """
-    err = np.linalg.norm(prediction - truth, axis=-1)[:, start_step:]
-    norm = np.linalg.norm(truth, axis=-1)[:, start_step:]
-    valid = norm >= np.radians(1.0)
-    rel = err[valid] / norm[valid]
+    if not np.isfinite(prediction).all():
+        return {"val_loss": math.nan, "val_median_rel": math.nan, "val_mean_err_deg": math.nan}
+    mean_deg = metrics.mean_euclidean_error(prediction, truth, start_step)
+    median = metrics.median_relative_error(prediction, truth, start_step)
     return {
-        "val_loss": float(err.mean()),
-        "val_median_rel": float(np.median(rel)) if rel.size else float("nan"),
-        "val_mean_err_deg": float(np.degrees(err.mean())),
+        "val_loss": math.radians(mean_deg),
+        "val_median_rel": math.nan if median is None else median,
+        "val_mean_err_deg": mean_deg,
     }
