@@ -563,20 +563,13 @@ def _spikes(ring, off, length, cap, ring_cnt, cnt_off, t):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True)
-def _run_block(  # pragma: no cover
-    inp, offs, s_begin, s_end, l0, l1, t_base, out, geo, par, klen, tab, tab_off, w, w_off, st,
-    st_off, z,
-    z_off, last, pos_off, ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off, seen, fc, kout,
-    hring, spike_counts, cycles, gap,
-):  # fmt: skip
-    n_layers = geo.shape[0]
-    mask = np.zeros(8 * (ring_cap[1:].max() // 8 + 1), dtype=np.uint8)
-    n_out = fc.shape[0]
-    lo = kout.shape[0]
-    # layer by layer over the block, so that a layer's state and weights stay in cache
-    for s in range(s_begin, s_end if l0 == 0 else s_begin):
-        # input events of this step, deduplicated (the input is binary), into ring 0 in arrival
-        # order (sorting them cost more than the locality it bought the layer-1 scatter)
+def _bin_input(
+    inp, offs, s_begin, s_end, t_base, ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off, seen,
+    cycles,
+):  # pragma: no cover  # fmt: skip
+    """Each step's input events, deduplicated (the input is binary), into ring 0 in arrival
+    order (sorting them cost more than the locality it bought the layer-1 scatter)."""
+    for s in range(s_begin, s_end):
         t = t_base + s
         c0 = _rdtsc()
         r0 = ring_off[0] + (t % ring_len[0]) * ring_cap[0]
@@ -588,67 +581,91 @@ def _run_block(  # pragma: no cover
                 ring[r0 + m] = idx
                 m += 1
         ring_cnt[cnt_off[0] + t % ring_len[0]] = m
-        cycles[n_layers, 0] += _rdtsc() - c0
-    for li in range(l0, l1):
-        g = geo[li]
-        cout, cout_shift = g[3], g[9]
-        big_l, big_m = klen[li, 0], klen[li, 1]
-        s0, p0 = st_off[li], pos_off[li]
-        n_neurons = g[4] * g[5] * cout
-        tb = tab[tab_off[li] : tab_off[li + 1]]
-        for s in range(s_begin, s_end):
-            t = t_base + s
-            c0 = _rdtsc()
-            spikes = _spikes(ring, ring_off[li], ring_len[li], ring_cap[li], ring_cnt, cnt_off[li],
-                             t)  # fmt: skip
-            if klen[li, 2]:  # synaptic input into map t of the ring, read back L steps later
-                zn = z_off[li] + (t % (big_l + 1)) * n_neurons
-                zo = z_off[li] + ((t + 1) % (big_l + 1)) * n_neurons
-                _scatter(spikes, g, tb, w, w_off[li], z, z, zn, last, p0, t, 0.0, 0.0)
-            else:
-                zn = zo = -1
-                _scatter(spikes, g, tb, w, w_off[li], st[0], st[1], s0, last, p0, t, 0.0, 0.0)
-            c1 = _rdtsc()
-            cycles[li, 0] += c1 - c0
-            if zn < 0 and t >= big_l:  # the same spikes L steps later, with the tail weights
-                spikes = _spikes(ring, ring_off[li], ring_len[li], ring_cap[li], ring_cnt,
-                                 cnt_off[li], t - big_l)  # fmt: skip
-                _scatter(spikes, g, tb, w, w_off[li], st[0], st[1], s0, last, p0, t, par[li, 2],
-                         par[li, 3])  # fmt: skip
-            c2 = _rdtsc()
-            cycles[li, 1] += c2 - c1
-            # refractory feedback of this layer's own spikes, one step and M steps ago
-            for lag in (1, big_m):
-                if t >= lag:
-                    amp = par[li, 4] if lag == 1 else par[li, 6]
-                    own = _spikes(ring, ring_off[li + 1], ring_len[li + 1], ring_cap[li + 1],
-                                  ring_cnt, cnt_off[li + 1], t - lag)  # fmt: skip
-                    for n in own:
-                        st[2, s0 + n] += amp
-                        if lag == 1:
-                            last[p0 + (n >> cout_shift if cout_shift >= 0 else n // cout)] = t
-            c3 = _rdtsc()
-            cycles[li, 2] += c3 - c2
-            cnt = cnt_off[li + 1] + t % ring_len[li + 1]
-            obase = ring_off[li + 1] + (t % ring_len[li + 1]) * ring_cap[li + 1]
-            n_spk = _layer_pass(
-                st, s0, z, zn, zo, last, p0, 0, g[4] * g[5], cout, t, max(big_l, big_m) + 1,
-                par[li], mask, ring[obase : obase + ring_cap[li + 1]], gap,
-            )  # fmt: skip
-            ring_cnt[cnt] = n_spk
-            spike_counts[li] += n_spk
-            cycles[li, 3] += _rdtsc() - c3
-    for s in range(s_begin, s_end if l1 == n_layers else s_begin):
+        cycles[cycles.shape[0] - 1, 0] += _rdtsc() - c0
+
+
+@numba.njit(cache=True, nogil=True)
+def _feedback(st, s0, last, p0, own, amp, t, mark, cout, cout_shift):  # pragma: no cover
+    """Add ``amp`` to the refractory state of the neurons in ``own`` (a spike list); with
+    ``mark``, mark their pixels touched at ``t``."""
+    for n in own:
+        st[2, s0 + n] += amp
+        if mark:
+            last[p0 + (n >> cout_shift if cout_shift >= 0 else n // cout)] = t
+
+
+@numba.njit(cache=True, nogil=True)
+def _layer_block(
+    li, s_begin, s_end, t_base, geo, par, klen, tab, tab_off, w, w_off, st, st_off, z, z_off, last,
+    pos_off, ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off, spike_counts, cycles, mask,
+    gap,
+):  # pragma: no cover  # fmt: skip
+    """Steps ``s_begin..s_end`` of layer ``li``: scatter its input spikes (and their tail L steps
+    later), the refractory feedback of its own, then the update pass into its output ring."""
+    g = geo[li]
+    cout, cout_shift = g[3], g[9]
+    big_l, big_m = klen[li, 0], klen[li, 1]
+    s0, p0 = st_off[li], pos_off[li]
+    n_neurons = g[4] * g[5] * cout
+    tb = tab[tab_off[li] : tab_off[li + 1]]
+    for s in range(s_begin, s_end):
         t = t_base + s
-        # -- readout: global average of the last layer's spikes -> dense -> psp (exact FIR)
+        c0 = _rdtsc()
+        spikes = _spikes(ring, ring_off[li], ring_len[li], ring_cap[li], ring_cnt, cnt_off[li], t)
+        if klen[li, 2]:  # synaptic input into map t of the ring, read back L steps later
+            zn = z_off[li] + (t % (big_l + 1)) * n_neurons
+            zo = z_off[li] + ((t + 1) % (big_l + 1)) * n_neurons
+            _scatter(spikes, g, tb, w, w_off[li], z, z, zn, last, p0, t, 0.0, 0.0)
+        else:
+            zn = zo = -1
+            _scatter(spikes, g, tb, w, w_off[li], st[0], st[1], s0, last, p0, t, 0.0, 0.0)
+        c1 = _rdtsc()
+        cycles[li, 0] += c1 - c0
+        if zn < 0 and t >= big_l:  # the same spikes L steps later, with the tail weights
+            spikes = _spikes(ring, ring_off[li], ring_len[li], ring_cap[li], ring_cnt,
+                             cnt_off[li], t - big_l)  # fmt: skip
+            _scatter(spikes, g, tb, w, w_off[li], st[0], st[1], s0, last, p0, t, par[li, 2],
+                     par[li, 3])  # fmt: skip
+        c2 = _rdtsc()
+        cycles[li, 1] += c2 - c1
+        # refractory feedback of this layer's own spikes, one step and M steps ago
+        for lag in (1, big_m):
+            if t >= lag:
+                own = _spikes(ring, ring_off[li + 1], ring_len[li + 1], ring_cap[li + 1],
+                              ring_cnt, cnt_off[li + 1], t - lag)  # fmt: skip
+                amp = par[li, 4] if lag == 1 else par[li, 6]
+                _feedback(st, s0, last, p0, own, amp, t, lag == 1, cout, cout_shift)
+        c3 = _rdtsc()
+        cycles[li, 2] += c3 - c2
+        cnt = cnt_off[li + 1] + t % ring_len[li + 1]
+        obase = ring_off[li + 1] + (t % ring_len[li + 1]) * ring_cap[li + 1]
+        n_spk = _layer_pass(
+            st, s0, z, zn, zo, last, p0, 0, g[4] * g[5], cout, t, max(big_l, big_m) + 1,
+            par[li], mask, ring[obase : obase + ring_cap[li + 1]], gap,
+        )  # fmt: skip
+        ring_cnt[cnt] = n_spk
+        spike_counts[li] += n_spk
+        cycles[li, 3] += _rdtsc() - c3
+
+
+@numba.njit(cache=True, nogil=True)
+def _readout(
+    s_begin, s_end, t_base, out, cout, ring, off, length, cap, ring_cnt, cnt_off, fc, kout, hring,
+    cycles,
+):  # pragma: no cover  # fmt: skip
+    """Readout of steps ``s_begin..s_end``: global average of the last layer's spikes (ring at
+    ``off``) -> dense -> psp (exact FIR over ``hring``), into ``out[s]``."""
+    n_out = fc.shape[0]
+    lo = kout.shape[0]
+    for s in range(s_begin, s_end):
+        t = t_base + s
         c0 = _rdtsc()
         hslot = t % lo
         for o in range(n_out):
             hring[hslot, o] = 0.0
-        cout = geo[n_layers - 1, 3]
-        slot = t % ring_len[n_layers]
-        base = ring_off[n_layers] + slot * ring_cap[n_layers]
-        for j in range(ring_cnt[cnt_off[n_layers] + slot]):
+        slot = t % length
+        base = off + slot * cap
+        for j in range(ring_cnt[cnt_off + slot]):
             ch = ring[base + j] % cout
             for o in range(n_out):
                 hring[hslot, o] += fc[o, ch]
@@ -657,4 +674,31 @@ def _run_block(  # pragma: no cover
             for k in range(min(lo, t + 1)):
                 acc += kout[k] * hring[(t - k) % lo, o]
             out[s, o] = acc
-        cycles[n_layers, 1] += _rdtsc() - c0
+        cycles[cycles.shape[0] - 1, 1] += _rdtsc() - c0
+
+
+@numba.njit(cache=True, nogil=True)
+def _run_block(  # pragma: no cover
+    inp, offs, s_begin, s_end, l0, l1, t_base, out, geo, par, klen, tab, tab_off, w, w_off, st,
+    st_off, z,
+    z_off, last, pos_off, ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off, seen, fc, kout,
+    hring, spike_counts, cycles, gap,
+):  # fmt: skip
+    n_layers = geo.shape[0]
+    mask = np.zeros(8 * (ring_cap[1:].max() // 8 + 1), dtype=np.uint8)
+    if l0 == 0:
+        _bin_input(inp, offs, s_begin, s_end, t_base, ring, ring_off, ring_len, ring_cap, ring_cnt,
+                   cnt_off, seen, cycles)  # fmt: skip
+    # layer by layer over the block, so that a layer's state and weights stay in cache
+    for li in range(l0, l1):
+        _layer_block(
+            li, s_begin, s_end, t_base, geo, par, klen, tab, tab_off, w, w_off, st, st_off, z,
+            z_off, last, pos_off, ring, ring_off, ring_len, ring_cap, ring_cnt, cnt_off,
+            spike_counts, cycles, mask, gap,
+        )  # fmt: skip
+    if l1 == n_layers:
+        _readout(
+            s_begin, s_end, t_base, out, geo[n_layers - 1, 3], ring, ring_off[n_layers],
+            ring_len[n_layers], ring_cap[n_layers], ring_cnt, cnt_off[n_layers], fc, kout, hring,
+            cycles,
+        )  # fmt: skip
