@@ -14,6 +14,7 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from spikegyro import options
 from spikegyro.checks import sensor_option
 from spikegyro.evaluate.compare import compare_runs, console_summary, table_one
 from spikegyro.evaluate.real import (
@@ -23,7 +24,6 @@ from spikegyro.evaluate.real import (
     run_real_evaluation,
 )
 from spikegyro.evaluate.simulated import run_evaluation
-from spikegyro.events.imu import IMU_TO_CAMERA_HELP
 from spikegyro.stream.predict import WARMUP_STEPS
 
 
@@ -91,9 +91,7 @@ def evaluate_real(
         help="Sensor calibration 'fx fy cx cy k1 k2 p1 p2 k3' (ECD calib.txt; taken from an ECD "
         "folder by default).",
     ),
-    intrinsics: tuple[float, float, float, float] = typer.Option(
-        None, "--intrinsics", help="Sensor pinhole intrinsics fx fy cx cy (pixels), no distortion."
-    ),
+    intrinsics: tuple[float, float, float, float] = options.INTRINSICS,
     checkpoint: Path = typer.Option(
         None, "--checkpoint", help="SNN checkpoint (default: the shipped pretrained SNN-6)."
     ),
@@ -106,12 +104,12 @@ def evaluate_real(
     windows_events: int = typer.Option(
         None, "--windows-events", min=1, help="Windows by event count instead of by time."
     ),
-    start: float = typer.Option(0.0, "--start", help="Start, seconds after the first event."),
-    end: float = typer.Option(None, "--end", help="End, seconds after the first event."),
+    start: float = options.START,
+    end: float = options.END,
     warmup_ms: int = typer.Option(
         WARMUP_STEPS, "--warmup-ms", min=0, help="Steps (ms) after --start that are not scored."
     ),
-    imu_to_camera: str = typer.Option(None, "--imu-to-camera", help=IMU_TO_CAMERA_HELP),
+    imu_to_camera: str = options.IMU_TO_CAMERA,
     gyro_offset: str = typer.Option(
         "0",
         "--gyro-offset",
@@ -124,8 +122,8 @@ def evaluate_real(
     mean_data: Path = typer.Option(
         None, "--mean-data", help="Dataset whose training mean the mean predictor answers (else 0)."
     ),
-    width: int = typer.Option(None, help="Sensor width, pixels (text files default to 240)."),
-    height: int = typer.Option(None, help="Sensor height, pixels (text files default to 180)."),
+    width: int = options.WIDTH,
+    height: int = options.HEIGHT,
 ) -> None:
     """Score SNN-6, CMax and the mean predictor against a gyro on a real recording."""
     config = RealEvalConfig(

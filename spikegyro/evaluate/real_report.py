@@ -27,6 +27,13 @@ from spikegyro.events.windows import BIN_US
 _REPORT_WINDOW_ROWS = 40
 
 
+def _write_csv(path: Path, head: list[str], cols: list[np.ndarray]) -> None:
+    """A CSV table of the columns (1-D, or 2-D for several) under a header row, atomically."""
+    with atomic_path(path) as tmp:
+        np.savetxt(tmp, np.column_stack(cols), delimiter=",", header=",".join(head),
+                   comments="", fmt="%.9g")  # fmt: skip
+
+
 def write_tables(
     out_dir: Path,
     ends: np.ndarray,
@@ -48,9 +55,7 @@ def write_tables(
     for method, series in per_ms.values():
         head += [f"{keys[method]}_{a}" for a in axes]
         cols.append(series)
-    with atomic_path(out_dir / "predictions.csv") as tmp:
-        np.savetxt(tmp, np.column_stack(cols), delimiter=",", header=",".join(head),
-                   comments="", fmt="%.9g")  # fmt: skip
+    _write_csv(out_dir / "predictions.csv", head, cols)
     tags = {name: ("cmax_window" if name == "CMax (window)" else per_ms[name][0])
             for name in window_pred}  # fmt: skip
     head = ["start", "end", "events", "scored"] + [f"gyro_{a}" for a in axes]
@@ -58,9 +63,7 @@ def write_tables(
     for name, pred in window_pred.items():
         head += [f"{tags[name]}_{a}" for a in axes]
         cols.append(pred)
-    with atomic_path(out_dir / "windows.csv") as tmp:
-        np.savetxt(tmp, np.column_stack(cols), delimiter=",", header=",".join(head),
-                   comments="", fmt="%.9g")  # fmt: skip
+    _write_csv(out_dir / "windows.csv", head, cols)
 
 
 def write_figures(

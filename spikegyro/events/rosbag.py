@@ -16,6 +16,7 @@ read in the bag's order; ones out of time order are put back in order.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -88,10 +89,23 @@ def _topics(reader: Any) -> tuple[list[Any], list[Any]]:
     )
 
 
-def read_header(path: Path, fmt: str) -> CameraHeader:
-    """Sensor size from the first event message; the event and IMU topics as attributes."""
+@contextmanager
+def _reading(path: Path) -> Iterator[Any]:
+    """The bag's reader, closed on leaving; a message it cannot parse is one InputError line."""
     reader = _open(path)
     try:
+        yield reader
+    except InputError:
+        raise
+    except Exception as exc:
+        raise InputError(f"{path}: a corrupt or truncated ROS bag message ({exc}).") from None
+    finally:
+        reader.close()
+
+
+def read_header(path: Path, fmt: str) -> CameraHeader:
+    """Sensor size from the first event message; the event and IMU topics as attributes."""
+    with _reading(path) as reader:
         ev_conns, imu_conns = _topics(reader)
         attrs: dict[str, Any] = {}
         sensor = None
@@ -109,12 +123,6 @@ def read_header(path: Path, fmt: str) -> CameraHeader:
                 break
         if imu_conns:
             attrs["imu_topic"] = imu_conns[0].topic
-    except InputError:
-        raise
-    except Exception as exc:
-        raise InputError(f"{path}: a corrupt or truncated ROS bag message ({exc}).") from None
-    finally:
-        reader.close()
     return CameraHeader(fmt=fmt, sensor=sensor, attrs=attrs)
 
 
@@ -182,8 +190,7 @@ def iter_blocks(
 ) -> Iterator[EventBlock | ImuBlock]:
     """One block per event message; IMU messages gathered a thousand at a time. Once the bag is
     read, EventPacket trigger counts are added to ``header.attrs``."""
-    reader = _open(path)
-    try:
+    with _reading(path) as reader:
         ev_conns, imu_conns = _topics(reader)
         wanted = (ev_conns if events else []) + (imu_conns if imu else [])
         if not wanted:  # rosbags reads every topic when given none
@@ -203,9 +210,3 @@ def iter_blocks(
             yield _imu_block(imu_msgs)
         if packets is not None and events:
             packets.finish(header.attrs)
-    except InputError:
-        raise
-    except Exception as exc:
-        raise InputError(f"{path}: a corrupt or truncated ROS bag message ({exc}).") from None
-    finally:
-        reader.close()

@@ -1,0 +1,31 @@
+"""Command-line options that several commands share, defined once so that each reads, checks
+and is documented the same way wherever it appears (a Typer option object may serve any
+number of commands)."""
+
+from __future__ import annotations
+
+import typer
+
+from spikegyro.events.imu import IMU_TO_CAMERA_HELP
+
+INTRINSICS = typer.Option(
+    None, "--intrinsics", help="Sensor pinhole intrinsics fx fy cx cy (pixels), no distortion."
+)
+"""``--intrinsics FX FY CX CY``: a pinhole calibration without distortion, pixels."""
+
+IMU_TO_CAMERA = typer.Option(None, "--imu-to-camera", help=IMU_TO_CAMERA_HELP)
+"""``--imu-to-camera R``: the gyro's axes in the camera frame
+(:func:`spikegyro.events.imu.imu_rotation`)."""
+
+START = typer.Option(0.0, "--start", help="Start, seconds after the first event.")
+"""``--start S``: where a recording's span starts, seconds after its first event."""
+
+END = typer.Option(None, "--end", help="End, seconds after the first event.")
+"""``--end S``: where it ends, seconds after the first event (default: the last event)."""
+
+WIDTH = typer.Option(None, help="Sensor width, pixels (text files default to 240).")
+"""``--width``: the sensor width of event files that do not say (see
+:func:`spikegyro.checks.sensor_option`)."""
+
+HEIGHT = typer.Option(None, help="Sensor height, pixels (text files default to 180).")
+"""``--height``: the sensor height of event files that do not say."""
