@@ -11,12 +11,13 @@ import torch
 from stream_helpers import TinySNN, random_events
 
 from spikegyro.errors import InputError
+from spikegyro.evaluate import metrics
 from spikegyro.events.calib import Calibration
 from spikegyro.events.core import GyroTrace, Recording
 from spikegyro.events.io import write_gyro_txt, write_recording
 from spikegyro.events.representations import spike_tensor
 from spikegyro.stream.model import spec_from_model
-from spikegyro.stream.predict import ErrorStats, predict_stream
+from spikegyro.stream.predict import WARMUP_STEPS, ErrorStats, predict_stream
 from spikegyro.stream.stateful import StreamingSNN
 from spikegyro.stream.writer import read_predictions
 
@@ -94,6 +95,29 @@ def test_gyro_columns_are_the_interpolated_reference(tmp_path, engine, recording
     assert result.stats["samples"] == scored.sum()
     assert result.stats["mean_error_deg_s"] == pytest.approx(np.degrees(err.mean()), rel=1e-4)
     assert result.plot is not None and result.plot.stat().st_size > 0
+
+
+def test_stream_scores_are_the_evaluation_metrics(tmp_path, engine, recording):
+    """The scores ``predict`` prints against a gyro are ``spikegyro.evaluate.metrics`` on the
+    rows it wrote (those after the warm-up, as one window scored from its first step)."""
+    path = write_recording(tmp_path / "rec.h5", recording)
+    gyro_path = tmp_path / "gyro.txt"
+    write_gyro_txt(gyro_path, recording.gyro)
+    out = tmp_path / "pred.h5"
+    result = predict_stream(path, engine, SPEC, out, gyro_path=gyro_path, plot=False)
+    pred = read_predictions(out)
+    scored = pred["t_us"] > T0_US + WARMUP_STEPS * 1000
+    s = metrics.summary(pred["omega"][None, scored], pred["gyro_omega"][None, scored], start=0)
+    got = result.stats
+    assert got["samples"] == s["n_pairs"] == scored.sum()
+    # the file holds float32: the scores agree to its rounding
+    assert got["mean_error_deg_s"] == pytest.approx(s["mean_euclidean_error_deg_s"], rel=1e-5)
+    assert got["rmse_deg_s"] == pytest.approx(s["rmse_deg_s"], rel=1e-5)
+    for key, axis in zip("xyz", metrics.AXES, strict=True):
+        per_axis = s["per_axis"][axis]
+        assert got[f"rmse_{key}_deg_s"] == pytest.approx(per_axis["rmse_deg_s"], rel=1e-5)
+        assert got[f"mae_{key}_deg_s"] == pytest.approx(per_axis["mean_abs_error_deg_s"], rel=1e-5)
+    assert got["median_relative_error"] == pytest.approx(s["median_relative_error"], rel=2.5e-3)
 
 
 def test_error_stats_against_numpy():

@@ -25,8 +25,9 @@ from typing import Any, Protocol
 import numpy as np
 
 from spikegyro.errors import InputError
+from spikegyro.evaluate import metrics
 from spikegyro.events.calib import Calibration, PinholeCamera
-from spikegyro.events.core import EventArray
+from spikegyro.events.core import EventArray, GyroTrace
 from spikegyro.events.io import (
     detect_format,
     iter_event_chunks,
@@ -60,7 +61,6 @@ BIN_US = 1000
 WARMUP_STEPS = 50
 """Steps after the start that metrics skip: the network needs ~50 ms of history (as in training)."""
 _PLOT_POINTS = 20_000
-_MIN_NORM_RAD = math.radians(1.0)
 
 
 def model_camera(input_spec: dict[str, Any]) -> PinholeCamera:
@@ -250,29 +250,35 @@ class SNNEstimator:
 
 @dataclass
 class ErrorStats:
-    """Running error statistics of predictions against a reference, in bounded memory."""
+    """Running error statistics of predictions against a reference, in bounded memory.
+
+    Each estimate's errors are those of :mod:`spikegyro.evaluate.metrics` (the rows taken as
+    one window whose every step is scored); their sums (deg/s) give the means, and a histogram
+    of log10 relative errors (0.1 % bins) gives the median.
+    """
 
     count: int = 0
     sum_err: float = 0.0
     sum_sq: float = 0.0
     sum_sq_axis: np.ndarray = field(default_factory=lambda: np.zeros(3))
     sum_abs_axis: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    # log10 relative error histogram, 0.1% resolution, for the median
     hist: np.ndarray = field(default_factory=lambda: np.zeros(8002, dtype=np.int64))
 
     def add(self, omega: np.ndarray, reference: np.ndarray) -> None:
         """Accumulate (K, 3) predictions and references, rad/s; NaN reference rows are skipped."""
         ok = np.isfinite(reference).all(axis=1)
-        diff = omega[ok] - reference[ok]
-        err = np.linalg.norm(diff, axis=1)
-        self.count += len(err)
+        if not ok.any():
+            return
+        pred, ref = omega[None, ok], reference[None, ok]
+        err = metrics.euclidean_errors_deg(pred, ref, start=0)
+        p, g = metrics.evaluated_steps(pred, ref, start=0)
+        axis_err = np.degrees(p - g).reshape(-1, 3)
+        self.count += err.size
         self.sum_err += float(err.sum())
         self.sum_sq += float((err**2).sum())
-        self.sum_sq_axis += (diff**2).sum(axis=0)
-        self.sum_abs_axis += np.abs(diff).sum(axis=0)
-        norm = np.linalg.norm(reference[ok], axis=1)
-        big = norm >= _MIN_NORM_RAD
-        rel = np.log10(np.maximum(err[big] / norm[big], 1e-30))
+        self.sum_sq_axis += (axis_err**2).sum(axis=0)
+        self.sum_abs_axis += np.abs(axis_err).sum(axis=0)
+        rel = np.log10(np.maximum(metrics.relative_errors(pred, ref, start=0), 1e-30))
         bins = np.clip(np.floor((rel + 4.0) * 1000).astype(np.int64) + 1, 0, len(self.hist) - 1)
         self.hist += np.bincount(bins, minlength=len(self.hist))
 
@@ -287,18 +293,14 @@ class ErrorStats:
             median_rel = 10 ** ((i - 0.5) / 1000 - 4.0)
         else:
             median_rel = float("nan")
-        axis_rmse = np.degrees(np.sqrt(self.sum_sq_axis / self.count))
-        axis_mae = np.degrees(self.sum_abs_axis / self.count)
+        axis_rmse = np.sqrt(self.sum_sq_axis / self.count)
+        axis_mae = self.sum_abs_axis / self.count
         return {
             "samples": self.count,
-            "mean_error_deg_s": math.degrees(self.sum_err / self.count),
-            "rmse_deg_s": math.degrees(math.sqrt(self.sum_sq / self.count)),
-            "rmse_x_deg_s": float(axis_rmse[0]),
-            "rmse_y_deg_s": float(axis_rmse[1]),
-            "rmse_z_deg_s": float(axis_rmse[2]),
-            "mae_x_deg_s": float(axis_mae[0]),
-            "mae_y_deg_s": float(axis_mae[1]),
-            "mae_z_deg_s": float(axis_mae[2]),
+            "mean_error_deg_s": self.sum_err / self.count,
+            "rmse_deg_s": math.sqrt(self.sum_sq / self.count),
+            **{f"rmse_{k}_deg_s": float(v) for k, v in zip("xyz", axis_rmse, strict=True)},
+            **{f"mae_{k}_deg_s": float(v) for k, v in zip("xyz", axis_mae, strict=True)},
             "median_relative_error": float(median_rel),
         }
 
@@ -501,53 +503,68 @@ def predict_stream(
         if isinstance(engine, GyroEstimator)
         else SNNEstimator(engine, input_spec, calibration, source=str(events_path))
     )
-    result = StreamResult()
     t0, t_end, chunks = _bounded_chunks(events_path, sensor, chunk_events, start_s, end_s)
     if t0 is None:
         raise InputError(f"{events_path}: the file holds no events.")
-    result.t0_us = t0
     estimator.reset(t0)
-    stats, series, summary = ErrorStats(), _Decimated(), _Summary()
-    start, cpu = time.perf_counter(), time.process_time()
-    last_t = t0
-
-    def emit(writer: PredictionWriter, est: Estimates) -> None:
-        ref = None
-        if gyro is not None:
-            ref = gyro.interpolate(est.t_us)
-            outside = (est.t_us < gyro.t[0]) | (est.t_us > gyro.t[-1]) if len(gyro) else True
-            ref[outside] = np.nan
-            scored = est.t_us > t0 + WARMUP_STEPS * BIN_US
-            stats.add(est.omega[scored], ref[scored])
-            series.add(np.column_stack([est.t_us, est.omega, ref]))
-        summary.add(est)
-        result.estimates += len(est)
-        writer.append(est.t_us, est.omega, ref, est if writer.with_confidence else None)
-
+    run = _StreamRun(gyro, t0)
     confidence = bool(getattr(estimator, "confidence", False))
     with PredictionWriter(out_path, with_gyro=gyro is not None, with_confidence=confidence) as w:
+        last_t = t0
         for chunk in chunks:
-            result.events += len(chunk)
+            run.result.events += len(chunk)
             last_t = int(chunk.t[-1])
-            emit(w, estimator.update(chunk))
+            run.emit(w, estimator.update(chunk))
             if on_progress is not None:
-                on_progress((last_t - t0) / 1e6, time.perf_counter() - start)
-        if not result.events:
+                on_progress((last_t - t0) / 1e6, time.perf_counter() - run.started)
+        if not run.result.events:
             raise InputError(f"{events_path}: no events between --start and --end.")
         end = t_end if t_end is not None else last_t + 1
-        emit(w, estimator.finish(end))
-    result.wall_s = time.perf_counter() - start
-    result.cpu_s = time.process_time() - cpu
-    result.steps = -(-(end - t0) // BIN_US)
-    result.engine = estimator.label
-    result.stats = stats.summary()
-    result.latency_ms = summary.latency_ms()
-    result.ill_posed = (summary.few, summary.little)
+        run.emit(w, estimator.finish(end))
+    result = run.finish(end, estimator.label)
     if gyro is not None and plot:
         result.plot = plot_against_gyro(
-            Path(out_path).with_suffix(".png"), series.table(), t0, _short_label(estimator)
+            Path(out_path).with_suffix(".png"), run.series.table(), t0, _short_label(estimator)
         )
     return result
+
+
+class _StreamRun:
+    """The bookkeeping of one :func:`predict_stream` run: rows written, scores against the gyro
+    (from :data:`WARMUP_STEPS` ms after ``t0_us``), the plot's samples, latency and timing."""
+
+    def __init__(self, gyro: GyroTrace | None, t0_us: int) -> None:
+        self.gyro, self.t0_us = gyro, t0_us
+        self.result = StreamResult(t0_us=t0_us)
+        self.stats, self.series, self.summary = ErrorStats(), _Decimated(), _Summary()
+        self.started, self._cpu = time.perf_counter(), time.process_time()
+
+    def emit(self, writer: PredictionWriter, est: Estimates) -> None:
+        """Score ``est`` against the gyro (NaN outside its span) and append it to ``writer``."""
+        ref = None
+        if self.gyro is not None:
+            ref = self.gyro.interpolate(est.t_us)
+            span = self.gyro.t
+            outside = (est.t_us < span[0]) | (est.t_us > span[-1]) if len(self.gyro) else True
+            ref[outside] = np.nan
+            scored = est.t_us > self.t0_us + WARMUP_STEPS * BIN_US
+            self.stats.add(est.omega[scored], ref[scored])
+            self.series.add(np.column_stack([est.t_us, est.omega, ref]))
+        self.summary.add(est)
+        self.result.estimates += len(est)
+        writer.append(est.t_us, est.omega, ref, est if writer.with_confidence else None)
+
+    def finish(self, end_us: int, engine: str) -> StreamResult:
+        """The result of a run that covered events up to ``end_us`` (exclusive)."""
+        result = self.result
+        result.wall_s = time.perf_counter() - self.started
+        result.cpu_s = time.process_time() - self._cpu
+        result.steps = -(-(end_us - self.t0_us) // BIN_US)
+        result.engine = engine
+        result.stats = self.stats.summary()
+        result.latency_ms = self.summary.latency_ms()
+        result.ill_posed = (self.summary.few, self.summary.little)
+        return result
 
 
 def _short_label(estimator: Any) -> str:
