@@ -84,3 +84,13 @@ def test_streaming_scores_equal_evaluation():
         assert got[f"mae_{key}_deg_s"] == pytest.approx(per_axis["mean_abs_error_deg_s"], rel=1e-12)
     # The histogram's bins are 10^0.001 apart: its median is within 0.25 % of the exact one.
     assert got["median_relative_error"] == pytest.approx(s["median_relative_error"], rel=2.5e-3)
+
+
+def test_the_metrics_import_without_torch():
+    """``spikegyro predict`` scores with these metrics and must start without torch."""
+    import subprocess
+    import sys
+
+    code = "import sys, spikegyro.evaluate.metrics; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
