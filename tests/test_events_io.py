@@ -197,6 +197,29 @@ def test_malformed_text_line(tmp_path: Path) -> None:
         read_recording(path)
 
 
+@pytest.mark.parametrize(
+    ("body", "bad"),
+    [
+        ("0.1 1 2 1\nfoo bar\n0.2 3 4 0\n", "foo bar"),  # words after the data began
+        ("0.1 1 2 1\n0.2 3 4 0\n0.3 5 6 1 extra\n", "0.3 5 6 1 extra"),
+        ("0.1 1 2 1\n0.2 3 4 0 0.3 5 6 1\n0.4 1 1 1\n", "0.2 3 4 0 0.3 5 6 1"),  # 8 numbers
+    ],
+)
+def test_a_bad_row_anywhere_is_named_not_skipped(tmp_path: Path, body: str, bad: str) -> None:
+    path = tmp_path / "events.txt"
+    path.write_text(body)
+    with pytest.raises(InputError, match=f"the line '{bad}'"):
+        read_recording(path)
+
+
+def test_header_comments_and_blank_lines_are_not_rows(tmp_path: Path) -> None:
+    path = tmp_path / "events.txt"
+    path.write_text("t x y p\n# DAVIS240C\n0.1 1 2 1\n\n0.2 3 4 0\n   \n")
+    ev = read_recording(path).events
+    np.testing.assert_array_equal(ev.t, [100_000, 200_000])
+    np.testing.assert_array_equal(ev.x, [1, 3])
+
+
 def test_failed_write_leaves_nothing(tmp_path: Path) -> None:
     rec = make_recording()
     bad = Recording(rec.events, rec.gyro, {"bad": object()})

@@ -27,6 +27,7 @@ import functools
 import inspect
 import json
 import os
+import re
 import shutil
 import tempfile
 import zipfile
@@ -183,8 +184,12 @@ def _first_data_row(path: Path) -> np.ndarray:
 def _iter_text_rows(
     path: Path, ncols: int, block_bytes: int = _TEXT_BLOCK_BYTES
 ) -> Iterator[np.ndarray]:
-    """Yield (n, ncols) float64 blocks of a whitespace- or comma-separated numeric text file."""
-    carry = b""
+    """Yield (n, ncols) float64 blocks of a whitespace- or comma-separated numeric text file.
+
+    Lines starting with ``#`` are comments; lines with words before the first data row are a
+    header. Any other line that is not ``ncols`` numbers is an :class:`InputError` naming it.
+    """
+    carry, first = b"", True
     with open(path, "rb") as f:
         while True:
             block = f.read(block_bytes)
@@ -198,22 +203,24 @@ def _iter_text_rows(
                     continue
                 data, carry = data[: cut + 1], data[cut + 1 :]
             if data.strip():
-                yield _parse_text_block(path, data, ncols)
+                rows = _parse_text_block(path, data, ncols, header_allowed=first)
+                first = first and rows.size == 0
+                yield rows
             if not block:
                 return
 
 
-def _parse_text_block(path: Path, data: bytes, ncols: int) -> np.ndarray:
+_WORD = re.compile(rb"[A-DF-Za-df-z#]")
+"""A letter other than an exponent's e/E, or a comment: the block needs the line-by-line path."""
+
+
+def _parse_text_block(path: Path, data: bytes, ncols: int, header_allowed: bool) -> np.ndarray:
     text = data.decode("ascii", errors="replace").replace(",", " ")
-    if "#" in text or any(c.isalpha() and c not in "eE" for c in text[:200]):
-        # Rare: comments or a header line; drop non-numeric lines, then parse the rest in one go.
-        text = "\n".join(
-            ln
-            for ln in text.splitlines()
-            if ln.strip()
-            and not ln.lstrip().startswith("#")
-            and not any(c.isalpha() and c not in "eE" for c in ln)
-        )
+    if _WORD.search(data):
+        lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+        while header_allowed and lines and _WORD.search(lines[0].encode()):
+            lines.pop(0)  # column names above the data
+        text = "\n".join(lines)
     try:
         values = np.array(text.split(), dtype=np.float64)
     except ValueError:
@@ -221,12 +228,21 @@ def _parse_text_block(path: Path, data: bytes, ncols: int) -> np.ndarray:
             f"{path}: the line '{_first_bad_line(text, ncols)}' is not {ncols} numbers; fix or "
             "remove it."
         ) from None
-    if values.size % ncols:
+    if values.size != ncols * _count_rows(text, values.size // max(ncols, 1)):
         raise InputError(
             f"{path}: the line '{_first_bad_line(text, ncols)}' does not have {ncols} numbers; "
             "fix or remove it."
         )
     return values.reshape(-1, ncols)
+
+
+def _count_rows(text: str, expected: int) -> int:
+    """Non-blank lines of ``text``: counted by newlines when that gives ``expected`` (the usual
+    case, in C), else line by line (blank or whitespace-only lines)."""
+    newlines = text.count("\n") + (0 if text.endswith("\n") else 1)
+    if newlines == expected:
+        return newlines
+    return sum(1 for line in text.splitlines() if line.strip())
 
 
 def _first_bad_line(text: str, ncols: int) -> str:
