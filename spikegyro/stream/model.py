@@ -24,6 +24,8 @@ from spikegyro.stream.stateful import SNNSpec, SRMLayerSpec, StreamingSNN
 if TYPE_CHECKING:
     from torch import nn
 
+    from spikegyro.stream.predict import PredictorFactory
+
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "pretrained" / "snn6.pt"
 """The shipped pretrained SNN-6 (``spikegyro.models.registry.PRETRAINED_SNN6``, spelled out here
 because importing :mod:`spikegyro.models` imports torch)."""
@@ -196,3 +198,23 @@ def load_streaming_model(
     """Build the streaming engine of a checkpoint; returns (engine, metadata without weights)."""
     spec, meta = load_streaming_spec(path)
     return StreamingSNN(spec, threads=threads), meta
+
+
+def load_engine(
+    path: str | os.PathLike,
+    device: str = "stream",
+    threads: int = 1,
+    segment_ms: int = 400,
+    context_ms: int = 100,
+    batch: int | None = None,
+) -> tuple[StreamingSNN | PredictorFactory, dict[str, Any]]:
+    """A checkpoint's network as ``predict`` runs it, and its metadata: on ``device="stream"``
+    the exact event-driven engine on ``threads`` CPU threads, else (a torch device) the batched
+    approximate path, segments of ``segment_ms`` after ``context_ms`` of warm-up, ``batch``
+    segments a pass (None: from memory)."""
+    if device == "stream":
+        return load_streaming_model(path, threads=threads)
+    # torch is imported only here: the exact stream needs none once the spec is cached
+    from spikegyro.stream.batched import SegmentConfig, batched_predictor
+
+    return batched_predictor(path, device, SegmentConfig(segment_ms, context_ms, batch))

@@ -50,10 +50,12 @@ __all__ = [
     "PredictorFactory",
     "SNNEstimator",
     "StreamPredictor",
+    "check_span",
     "event_mapper",
     "model_camera",
     "predict_stream",
     "read_time_span",
+    "span_seconds",
     "write_predictions",
 ]
 
@@ -352,6 +354,22 @@ def read_time_span(path: str | os.PathLike) -> tuple[int, int] | None:
     return None
 
 
+def check_span(start_s: float, end_s: float | None) -> None:
+    """Raise :class:`InputError` unless ``--end`` (s; None: the last event) is after ``--start``."""
+    if end_s is not None and end_s <= start_s:
+        raise InputError(f"--end {end_s} s must be after --start {start_s} s.")
+
+
+def span_seconds(path: str | os.PathLike, start_s: float, end_s: float | None) -> float | None:
+    """Seconds of events a run of ``path`` from ``start_s`` to ``end_s`` (s after the first event;
+    None: to the last) covers, read cheaply; None where the file does not say."""
+    span = read_time_span(path)
+    if span is None:
+        return None
+    total_s = max(0.0, (span[1] - span[0]) / 1e6 - start_s)
+    return total_s if end_s is None else min(total_s, end_s - start_s)
+
+
 def _bounded_chunks(
     path: Path,
     sensor: tuple[int, int] | None,
@@ -496,8 +514,7 @@ def predict_stream(
     """
     events_path = Path(events_path)
     gyro = None if gyro_path is None else read_gyro(gyro_path, imu_to_camera=gyro_rotation)
-    if end_s is not None and end_s <= start_s:
-        raise InputError(f"--end {end_s} s must be after --start {start_s} s.")
+    check_span(start_s, end_s)
     estimator = (
         engine
         if isinstance(engine, GyroEstimator)
@@ -619,8 +636,11 @@ def is_simulated(path: str | os.PathLike) -> bool:
         return False
 
 
-def summary_lines(result: StreamResult, out: str | os.PathLike) -> list[str]:
-    """What ``predict`` prints at the end: output, speed, latency, ill-posed estimates, errors."""
+def summary_lines(
+    result: StreamResult, out: str | os.PathLike, warm_up: bool = False
+) -> list[str]:
+    """What ``predict`` prints at the end: output, speed, latency, ill-posed estimates, errors;
+    with ``warm_up`` (the network), a warning when the run ends within its warm-up."""
     seconds = result.steps * BIN_US / 1e6
     lines = [
         f"{result.estimates:,} estimates ({result.rate_hz:.0f} per second, {seconds:.3f} s, "
@@ -629,6 +649,11 @@ def summary_lines(result: StreamResult, out: str | os.PathLike) -> list[str]:
         "CPU-second)",
         f"engine: {result.engine}",
     ]
+    if warm_up and result.steps <= WARMUP_STEPS:
+        lines.append(
+            f"warning: {result.steps} ms of output is within the network's {WARMUP_STEPS} ms "
+            "warm-up, where it reads about zero; predict over a longer span to get estimates."
+        )
     if math.isfinite(result.latency_ms):
         lines.append(
             f"latency: each estimate is the mean rate over its window, whose events lie "
