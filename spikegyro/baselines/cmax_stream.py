@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +34,7 @@ from spikegyro.baselines.cmax import (
     Progress,
     camera_from_attrs,
     default_camera,
+    estimate_window,
     ray_table,
     refine,
     search,
@@ -42,7 +43,7 @@ from spikegyro.baselines.cmax_windows import EventBuffer, HotPixels, pixel_speed
 from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration
 from spikegyro.events.core import EventArray
-from spikegyro.events.io import detect_format, iter_event_chunks, read_hdf5_attrs
+from spikegyro.events.io import detect_format, iter_event_chunks, read_hdf5_attrs, read_recording
 from spikegyro.stream.estimator import (
     ILL_FEW_EVENTS,
     ILL_LITTLE_MOTION,
@@ -341,3 +342,47 @@ def cmax_estimator_for_file(
         config = replace(config, window=replace(config.window, fixed_ms=float(window_ms)))
     camera, note = camera_for_file(path, calibration, sensor)
     return CMaxEstimator(camera, config), note
+
+
+@dataclass(frozen=True)
+class WholeEstimate:
+    """One estimate from every event of a span (``baseline cmax --whole``).
+
+    Attributes:
+        t_us: its time, the last event's, µs.
+        omega: ω (3,) rad/s.
+        events: events it used.
+        duration_us: the events' span, µs.
+        note: where the intrinsics come from (:func:`camera_for_file`).
+    """
+
+    t_us: int
+    omega: np.ndarray
+    events: int
+    duration_us: int
+    note: str
+
+
+def estimate_whole_file(
+    path: str | os.PathLike,
+    calibration: Calibration | None = None,
+    sensor: tuple[int, int] | None = None,
+    start_s: float = 0.0,
+    end_s: float | None = None,
+) -> WholeEstimate:
+    """One estimate from all events of ``path`` (read into memory) between ``start_s`` and
+    ``end_s`` (s after the first event's whole millisecond; None: the last event), stamped at
+    the last of them."""
+    rec = read_recording(path, sensor=sensor)
+    if not len(rec.events):
+        raise InputError(f"{path}: the file holds no events.")
+    camera, note = camera_for_file(path, calibration, sensor)
+    t0 = int(rec.events.t[0]) // BIN_US * BIN_US
+    t_end = int(rec.events.t[-1]) + 1 if end_s is None else t0 + round(end_s * 1e6)
+    ev = rec.events.slice_time(t0 + round(start_s * 1e6), t_end)
+    if not len(ev):
+        raise InputError(f"{path}: no events between --start and --end.")
+    config = CMaxConfig(max_events=max(len(ev), 1))
+    t_ref = int(ev.t[-1])
+    omega = estimate_window(ev, camera, config, t_ref_us=t_ref)
+    return WholeEstimate(t_ref, omega, len(ev), ev.duration_us, note)
