@@ -6,6 +6,7 @@ Reads the ``metrics.json`` of each ``spikegyro evaluate`` output folder and writ
   relative error and mean Euclidean error per ms and per 20 ms window, operations and energy per
   estimate), each of our rows followed by the paper's published row for that model, labelled as
   the paper's; the energy table with its sources; the per-speed-bin table and figure (Fig. 4);
+- the per-axis table: mean absolute error on tilt, pan and roll, every model side by side;
 - ``bins.png``; ``comparison.json``: the same numbers, machine-readable.
 
 Training steps and time come from the checkpoint named in ``metrics.json`` (its ``extra``: step
@@ -28,7 +29,7 @@ from rich.table import Table as RichTable
 from spikegyro.errors import InputError
 from spikegyro.evaluate import energy, figures
 from spikegyro.evaluate.console import write_json
-from spikegyro.evaluate.metrics import WINDOW_METRIC_MS
+from spikegyro.evaluate.metrics import AXES, WINDOW_METRIC_MS
 from spikegyro.evaluate.report import (
     PAPER_RESULTS,
     PER_MS_LABEL,
@@ -260,6 +261,28 @@ def energy_table(models: dict[str, dict[str, Any]]) -> Table:
     )
 
 
+def axis_mae_table(models: dict[str, dict[str, Any]]) -> Table:
+    """One row per model: mean absolute error (deg/s) on tilt, pan and roll side by side, then
+    the mean Euclidean error for scale; "-" where a run has no per-axis metrics."""
+    rows = []
+    for name, entry in models.items():
+        m = entry["metrics"]
+        per_axis = m.get("per_axis") or {}
+        rows.append(
+            [
+                name,
+                *(fmt((per_axis.get(axis) or {}).get("mean_abs_error_deg_s"), 1) for axis in AXES),
+                fmt(m.get("mean_euclidean_error_deg_s"), 1),
+            ]
+        )
+    return Table(
+        f"Per-axis mean absolute error [deg/s], {PER_MS_LABEL}: tilt (x), pan (y), roll (z, about "
+        "the optical axis), every model side by side; the mean Euclidean error for scale",
+        ["model", *(f"{axis} [deg/s]" for axis in AXES), "mean Eucl. error [deg/s]"],
+        rows,
+    )
+
+
 def compare_runs(
     run_dirs: list[str | os.PathLike], out_dir: str | os.PathLike
 ) -> dict[str, dict[str, Any]]:
@@ -300,6 +323,7 @@ def compare_runs(
     blocks: list[Block] = [
         *notes,
         table_one(models),
+        axis_mae_table(models),
         energy_table(models),
         FigureRef(
             "Median relative error per true-speed bin, all models (paper Fig. 4).", "bins.png"
