@@ -40,6 +40,7 @@ from spikegyro.baselines import cmax_iwe
 from spikegyro.baselines.cmax_windows import WindowPolicy, hot_pixel_mask
 from spikegyro.events.calib import DEFAULT_FOCAL_PX, DEFAULT_WIDTH, PinholeCamera
 from spikegyro.events.core import EventArray
+from spikegyro.events.windows import BIN_US, series_per_window
 
 Progress = Callable[[int, int], Any]
 
@@ -491,7 +492,7 @@ def hold_per_ms(t_us: np.ndarray, omega: np.ndarray, t_start_us: int, num_steps:
     Step k is the bin ``[t_start + k ms, t_start + (k + 1) ms)``; it takes the last estimate with
     ``t_us <= t_start + (k + 1) ms`` (zeros before the first estimate).
     """
-    ends = t_start_us + 1000 * (np.arange(num_steps, dtype=np.int64) + 1)
+    ends = t_start_us + BIN_US * (np.arange(num_steps, dtype=np.int64) + 1)
     index = np.searchsorted(t_us, ends, side="right") - 1
     held = np.zeros((num_steps, 3))
     held[index >= 0] = omega[index[index >= 0]]
@@ -524,17 +525,19 @@ def predict_windows(
         first_step: first 1 ms step that gets an estimate.
     """
     config = config or SIMULATED_CONFIG
-    out = []
-    for n, window in enumerate(windows):
-        num_steps = int(np.asarray(window.omega).shape[0])
+
+    def held(batch: Sequence[Any]) -> np.ndarray:
+        (window,) = batch  # one at a time: each window is streamed on its own
+        steps = int(np.asarray(window.omega).shape[0])
         t0 = int(window.t_start_us)
         t_us, omega = predict_stream(
-            window.events, camera, config, t_first_us=t0, t_end_us=t0 + 1000 * num_steps
+            window.events, camera, config, t_first_us=t0, t_end_us=t0 + BIN_US * steps
         )
-        keep = t_us > t0 + 1000 * first_step
-        held = hold_per_ms(t_us[keep], omega[keep], t0, num_steps)
-        held[:first_step] = 0.0
-        out.append(held)
-        if progress is not None:
-            progress(n + 1, len(windows))
-    return np.stack(out) if out else np.zeros((0, 0, 3))
+        keep = t_us > t0 + BIN_US * first_step
+        series = hold_per_ms(t_us[keep], omega[keep], t0, steps)
+        series[:first_step] = 0.0
+        return series[None]
+
+    num_steps = int(np.asarray(windows[0].omega).shape[0]) if len(windows) else 0
+    done = None if progress is None else lambda n: progress(n, len(windows))
+    return series_per_window(held, windows, num_steps, progress=done)

@@ -44,14 +44,13 @@ from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration
 from spikegyro.events.core import EventArray
 from spikegyro.events.io import detect_format, iter_event_chunks, read_hdf5_attrs, read_recording
+from spikegyro.events.windows import BIN_US
 from spikegyro.stream.estimator import (
     ILL_FEW_EVENTS,
     ILL_LITTLE_MOTION,
     Estimates,
     output_times,
 )
-
-BIN_US = 1000
 
 
 class CMaxEstimator:

@@ -33,7 +33,8 @@ from spikegyro.errors import InputError
 from spikegyro.events import binning_torch
 from spikegyro.events.calib import PinholeCamera
 from spikegyro.events.core import EventArray
-from spikegyro.stream.predict import BIN_US, PredictorFactory
+from spikegyro.events.windows import BIN_US
+from spikegyro.stream.predict import PredictorFactory
 from spikegyro.stream.stateful import SNNSpec
 
 __all__ = [

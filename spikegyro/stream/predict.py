@@ -35,6 +35,7 @@ from spikegyro.events.io import (
     read_gyro,
     read_hdf5_attrs,
 )
+from spikegyro.events.windows import BIN_US
 from spikegyro.stream.estimator import (
     ILL_FEW_EVENTS,
     ILL_LITTLE_MOTION,
@@ -59,7 +60,6 @@ __all__ = [
     "write_predictions",
 ]
 
-BIN_US = 1000
 WARMUP_STEPS = 50
 """Steps after the start that metrics skip: the network needs ~50 ms of history (as in training)."""
 _PLOT_POINTS = 20_000
@@ -636,9 +636,7 @@ def is_simulated(path: str | os.PathLike) -> bool:
         return False
 
 
-def summary_lines(
-    result: StreamResult, out: str | os.PathLike, warm_up: bool = False
-) -> list[str]:
+def summary_lines(result: StreamResult, out: str | os.PathLike, warm_up: bool = False) -> list[str]:
     """What ``predict`` prints at the end: output, speed, latency, ill-posed estimates, errors;
     with ``warm_up`` (the network), a warning when the run ends within its warm-up."""
     seconds = result.steps * BIN_US / 1e6
