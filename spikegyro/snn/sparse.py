@@ -45,15 +45,13 @@ Lists = tuple[np.ndarray, np.ndarray, np.ndarray]
 class _Layer:
     """One conv layer as the Numba kernels take it (arrays in the engine's dtype)."""
 
-    weight: np.ndarray  # (kh, kw, C_in, C_out), C-contiguous
-    stride: int
-    in_width: int
+    weight: np.ndarray  # (kh·kw, C_in, C_out), C-contiguous
+    geometry: np.ndarray  # [stride, input width, output width, kernel width], px
     out_shape: tuple[int, int]
     rows: tuple[np.ndarray, np.ndarray]
     cols: tuple[np.ndarray, np.ndarray]
     alpha: np.ndarray
     taps: int
-    eps: np.ndarray
     ref: np.ndarray
     theta: np.generic
     half_width: np.generic
@@ -74,17 +72,15 @@ class _Layer:
         kernel = conv.weight.shape[-1]
         out_hw = conv.output_size(*in_hw)
         alpha, taps = alpha_constants(conv.srm_kernel.detach().double().cpu().numpy(), dtype)
-        weight = conv.weight.detach().permute(2, 3, 1, 0).cpu().numpy().astype(dtype)
+        weight = conv.weight.detach().permute(2, 3, 1, 0).flatten(0, 1).cpu().numpy()
         return cls(
-            weight=np.ascontiguousarray(weight),
-            stride=conv.stride,
-            in_width=in_hw[1],
+            weight=np.ascontiguousarray(weight.astype(dtype)),
+            geometry=np.array([conv.stride, in_hw[1], out_hw[1], kernel], np.int64),
             out_shape=out_hw,
             rows=fanout_tables(in_hw[0], out_hw[0], kernel, conv.stride),
             cols=fanout_tables(in_hw[1], out_hw[1], kernel, conv.stride),
             alpha=alpha,
             taps=taps,
-            eps=conv.srm_kernel.detach().cpu().numpy().astype(dtype),
             ref=conv.ref_kernel.detach().cpu().numpy().astype(dtype),
             theta=dtype(p.theta),
             half_width=dtype(width),
@@ -93,11 +89,15 @@ class _Layer:
             ),
         )
 
+    @property
+    def out_pixels(self) -> int:
+        return self.out_shape[0] * self.out_shape[1]
+
     def forward(self, inputs: Lists, record: bool) -> tuple[Lists, tuple[np.ndarray, ...]]:
         """(output spike lists, (active offsets, indices, potentials))."""
         spk_off, spk_idx, act_off, act_idx, act_u = layer_forward(
-            *inputs, self.in_width, self.weight, self.stride, self.out_shape, self.rows,
-            self.cols, self.alpha, self.taps, self.ref, self.theta, self.half_width, record,
+            inputs, self.weight, self.geometry, self.out_pixels, self.rows, self.cols,
+            self.alpha, self.taps, self.ref, (self.theta, self.half_width, record),
         )  # fmt: skip
         return (spk_off, spk_idx, np.ones(spk_idx.size, self.weight.dtype)), (
             act_off,
@@ -235,7 +235,8 @@ class EventDrivenStack:
             total = per_element[0][i].copy()
             for element in per_element[1:]:
                 total += element[i]
-            grads.append(torch.from_numpy(total).permute(3, 2, 0, 1).contiguous().to(conv.weight))
+            shaped = total.reshape(*conv.weight.shape[2:], *total.shape[1:])  # (kh, kw, in, out)
+            grads.append(torch.from_numpy(shaped).permute(3, 2, 0, 1).contiguous().to(conv.weight))
         return grads
 
     def _map(self, fn: Callable[[int], Any], count: int) -> list[Any]:
@@ -292,7 +293,7 @@ class _Plan:
 
     @property
     def channels(self) -> int:
-        return self.layers[-1].weight.shape[3]
+        return self.layers[-1].weight.shape[2]
 
     def forward_element(self, x: np.ndarray) -> _Element:
         """Forward pass of one (C, H, W, T) input; keeps each layer's input and active pairs."""
@@ -301,28 +302,28 @@ class _Plan:
         element = _Element()
         for i, layer in enumerate(self.layers):
             element.inputs.append(spikes)
-            start = time.perf_counter()
+            start = time.thread_time()
             spikes, active = layer.forward(spikes, record=i >= self.first)
-            element.forward_s.append(time.perf_counter() - start)
+            element.forward_s.append(time.thread_time() - start)
             element.active.append(active)
         element.pooled = _pool_forward(spikes[0], spikes[1], self.pooling, self.channels)
         return element
 
     def backward_element(self, element: _Element, grad_pooled: np.ndarray) -> list[np.ndarray]:
-        """Weight gradients (kh, kw, C_in, C_out) of layers ``first`` … last for one element."""
+        """Weight gradients (kh·kw, C_in, C_out) of layers ``first`` … last for one element."""
         act_off, act_idx, _ = element.active[-1]
         grad_s = _pool_backward(act_off, act_idx, grad_pooled, self.pooling, self.channels)
         grads = []
         for i in range(len(self.layers) - 1, self.first - 1, -1):
             layer = self.layers[i]
-            start = time.perf_counter()
-            act_off, act_idx, act_u = element.active[i]
-            below = element.active[i - 1][:2] if i > self.first else (act_off[:1], act_idx[:0])
+            start = time.thread_time()
+            act_off, act_idx, _ = element.active[i]
+            below = element.active[i - 1][:2] if i > self.first else (act_off, act_idx[:0])
             grad_w, grad_s = layer_backward(
-                act_off, act_idx, act_u, grad_s, layer.surrogate, layer.eps, layer.out_shape,
-                element.inputs[i], layer.in_width, layer.weight, layer.stride, layer.rows,
-                layer.cols, below, i > self.first,
+                element.active[i], grad_s, layer.surrogate, layer.alpha, layer.taps,
+                element.inputs[i], layer.weight, layer.geometry, layer.out_pixels, layer.rows,
+                layer.cols, below,
             )  # fmt: skip
             grads.append(grad_w)
-            element.backward_s.append(time.perf_counter() - start)
+            element.backward_s.append(time.thread_time() - start)
         return grads[::-1]

@@ -1,18 +1,27 @@
 """Event-driven backward pass of one SRM conv layer on the CPU (Numba).
 
-With a bounded surrogate, ∂L/∂u = ρ(u)·∂L/∂s is non-zero only at the (neuron, step) pairs that
-:func:`spikegyro.snn.sparse_forward.layer_forward` recorded within the support. From those δ
-alone, in reverse time (no gradient flows through the refractory feedback, as in SLAYER):
+With a bounded surrogate, δ[t] = ∂L/∂u[t] = ρ(u)·∂L/∂s[t] is non-zero only at the (neuron, step)
+pairs that :func:`spikegyro.snn.sparse_forward.layer_forward` recorded within the support. From
+those δ alone, in reverse time (no gradient flows through the refractory feedback, as in SLAYER):
 
-- PSP adjoint: ∂L/∂z[t] = Σ_{k≥1} ε[k]·δ[t + k] (ε[0] = 0), kept as a ring of L output maps into
-  which each δ is added once per tap;
-- weight gradient: ∂L/∂W[ky, kx, c, :] += value·∂L/∂z[t, pixel, :] for every input spike (or
-  input value) at step t and every output pixel it reaches: the transpose of the forward
-  scatter, from sparse inputs only;
+- PSP adjoint: ∂L/∂z[t] = Σ_{k≥1} ε[k]·δ[t + k]. In reverse time this is the causal filter of
+  the forward pass, so it runs as the same double pole (A, D) with each δ fed in once and once
+  more, L steps earlier, with the tail weights (the truncation of ε, exactly)::
+
+      A[t] = p·A[t+1] + δ[t] − pᴸ·δ[t+L]
+      D[t] = p·D[t+1] + p·A[t+1] − L·pᴸ·δ[t+L]          ∂L/∂z[t] = c·D[t]
+
+  advanced over runs of live pixels (those with a δ in the next L − 1 steps) in one vectorised
+  loop; a pixel whose last δ has left the kernel has its state and ∂L/∂z set to exactly 0;
+- weight gradient: ∂L/∂W[tap, c, :] += value·∂L/∂z[t, pixel, :] for every input spike (or input
+  value) at step t and every live output pixel it reaches: the transpose of the forward scatter,
+  from sparse inputs only;
 - input gradient: ∂L/∂s_in[t] = convᵀ(∂L/∂z[t]), evaluated only at the pairs of the layer below
-  that lie within *its* support (elsewhere its ρ is 0 and the value is never used).
+  that lie within *its* support (elsewhere its ρ is 0 and the value is never used); the pairs of
+  one input pixel share their targets.
 
 Layouts as in :mod:`spikegyro.snn.sparse_forward` (channels-last flat indices, CSR by step).
+Sums run in any order (``fastmath``): they are not compared with a threshold.
 """
 
 from __future__ import annotations
@@ -20,151 +29,194 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from spikegyro.snn.sparse_forward import pixel_group, targets
+
 _FUTURE = np.iinfo(np.int64).max
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _dot(a: np.ndarray, b: np.ndarray) -> float:
-    total = a[0] * 0
-    for o in range(a.size):
-        total += a[o] * b[o]
-    return total
+def _deltas(act_u: np.ndarray, grad_s: np.ndarray, surrogate: np.ndarray) -> np.ndarray:
+    """δ = ρ(u)·∂L/∂s at the recorded pairs; surrogate = [θ, scale_rho/θ, −1/(tau_rho·θ)]."""
+    theta, height, slope = surrogate[0], surrogate[1], surrogate[2]
+    out = np.empty_like(act_u)
+    for j in range(act_u.size):
+        out[j] = height * np.exp(slope * abs(act_u[j] - theta)) * grad_s[j]
+    return out
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _feed(
+    state: np.ndarray,
+    index: np.ndarray,
+    delta: np.ndarray,
+    start: int,
+    stop: int,
+    weight_a: float,
+    weight_d: float,
+    live: np.ndarray,
+    until: int,
+) -> None:
+    """A += weight_a·δ, D += weight_d·δ at the pairs ``start:stop``; with ``live`` non-empty,
+    their pixels stay live down to step ``until`` (a new δ; steps only decrease)."""
+    cout = state.shape[1] // max(live.size, 1)
+    for j in range(start, stop):
+        state[0, index[j]] += weight_a * delta[j]
+        state[1, index[j]] += weight_d * delta[j]
+        if live.size:
+            live[index[j] // cout] = until
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _adjoint_step(
+    state: np.ndarray, grad_z: np.ndarray, live: np.ndarray, t: int, alpha: np.ndarray
+) -> None:
+    """∂L/∂z[t] = c·D[t] at every live pixel (runs of adjacent ones, one vectorised loop each) and
+    one reverse step of the recursion; a pixel whose δ have all left the kernel (``live`` = t) is
+    cleared, and stays so while ``live`` > t."""
+    c_eps, p_eps = alpha[0], alpha[1]
+    cout = grad_z.size // live.size
+    pixel = 0
+    while pixel < live.size:
+        if live[pixel] > t:
+            pixel += 1
+            continue
+        if live[pixel] == t:  # exactly 0 from here on: the kernel is truncated
+            lo, hi = pixel * cout, (pixel + 1) * cout
+            state[:, lo:hi] = 0.0
+            grad_z[lo:hi] = 0.0
+            pixel += 1
+            continue
+        end = pixel + 1
+        while end < live.size and live[end] < t:
+            end += 1
+        a, d = state[0, pixel * cout : end * cout], state[1, pixel * cout : end * cout]
+        g = grad_z[pixel * cout : end * cout]
+        for o in range(g.size):  # a = p·A[t+1], d = p·(D[t+1] + A[t+1]) and the δ of step t
+            dd = d[o]
+            aa = a[o]
+            g[o] = c_eps * dd
+            d[o] = p_eps * (dd + aa)
+            a[o] = p_eps * aa
+        pixel = end
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _weight_grad_at(
     grad_w: np.ndarray,
-    slot: np.ndarray,
-    touched: np.ndarray,
-    horizon: int,
-    index: np.ndarray,
-    values: np.ndarray,
-    start: int,
-    stop: int,
-    stride: int,
-    in_width: int,
-    out_width: int,
+    grad_z: np.ndarray,
+    live: np.ndarray,
+    t: int,
+    inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
+    geometry: np.ndarray,
     rows: tuple[np.ndarray, np.ndarray],
     cols: tuple[np.ndarray, np.ndarray],
+    reach: np.ndarray,
 ) -> None:
-    """∂W[ky, kx, c, :] += value·∂L/∂z[pixel, :] for the inputs ``start:stop`` of one step."""
-    kernel_w, cin, cout = grad_w.shape[1], grad_w.shape[2], grad_w.shape[3]
-    for i in range(start, stop):
-        pixel_in, c = divmod(index[i], cin)
-        iy, ix = divmod(pixel_in, in_width)
-        value = values[i]
-        for oy in range(rows[0][iy], rows[1][iy] + 1):
-            ky = iy - oy * stride
-            for ox in range(cols[0][ix], cols[1][ix] + 1):
-                kx = ix - ox * stride
-                pixel = oy * out_width + ox
-                if kx >= kernel_w or touched[pixel] > horizon:
-                    continue  # ∂L/∂z is exactly 0 there
-                row = grad_w[ky, kx, c]
-                grad_z = slot[pixel * cout : (pixel + 1) * cout]
+    """∂W[tap, c, :] += value·∂L/∂z[pixel, :] for the inputs of step t."""
+    offsets, index, values = inputs
+    cin, cout = grad_w.shape[1], grad_w.shape[2]
+    i, stop = offsets[t], offsets[t + 1]
+    while i < stop:
+        pixel_in, end = pixel_group(index, i, stop, cin)
+        for k in range(targets(pixel_in, geometry, rows, cols, reach)):
+            pixel, tap = reach[0, k], reach[1, k]
+            if live[pixel] >= t:
+                continue  # ∂L/∂z is exactly 0 there
+            grad = grad_z[pixel * cout : (pixel + 1) * cout]
+            for e in range(i, end):
+                row = grad_w[tap, index[e] - pixel_in * cin]
+                value = values[e]
                 for o in range(cout):
-                    row[o] += value * grad_z[o]
+                    row[o] += value * grad[o]
+        i = end
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _input_grad_at(
     out: np.ndarray,
     weight: np.ndarray,
-    slot: np.ndarray,
-    touched: np.ndarray,
-    horizon: int,
-    index: np.ndarray,
-    start: int,
-    stop: int,
-    stride: int,
-    in_width: int,
-    out_width: int,
+    grad_z: np.ndarray,
+    live: np.ndarray,
+    t: int,
+    below: tuple[np.ndarray, np.ndarray],
+    geometry: np.ndarray,
     rows: tuple[np.ndarray, np.ndarray],
     cols: tuple[np.ndarray, np.ndarray],
+    reach: np.ndarray,
 ) -> None:
-    """out[i] = convᵀ(∂L/∂z)[index[i]] for the pairs ``start:stop`` of one step."""
-    kernel_w, cin, cout = weight.shape[1], weight.shape[2], weight.shape[3]
-    for i in range(start, stop):
-        pixel_in, c = divmod(index[i], cin)
-        iy, ix = divmod(pixel_in, in_width)
-        total = out[i] * 0
-        for oy in range(rows[0][iy], rows[1][iy] + 1):
-            ky = iy - oy * stride
-            for ox in range(cols[0][ix], cols[1][ix] + 1):
-                kx = ix - ox * stride
-                pixel = oy * out_width + ox
-                if kx >= kernel_w or touched[pixel] > horizon:
-                    continue
-                total += _dot(weight[ky, kx, c], slot[pixel * cout : (pixel + 1) * cout])
-        out[i] = total
+    """out[j] = convᵀ(∂L/∂z[t])[index[j]] for the pairs of the layer below at step t."""
+    offsets, index = below
+    cin, cout = weight.shape[1], weight.shape[2]
+    i, stop = offsets[t], offsets[t + 1]
+    while i < stop:
+        pixel_in, end = pixel_group(index, i, stop, cin)
+        for k in range(targets(pixel_in, geometry, rows, cols, reach)):
+            pixel, tap = reach[0, k], reach[1, k]
+            if live[pixel] >= t:
+                continue
+            grad = grad_z[pixel * cout : (pixel + 1) * cout]
+            for e in range(i, end):
+                w = weight[tap, index[e] - pixel_in * cin]
+                total = out[e] * 0
+                for o in range(cout):
+                    total += w[o] * grad[o]
+                out[e] += total
+        i = end
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@numba.njit(cache=True, nogil=True)
 def layer_backward(
-    act_offsets: np.ndarray,
-    act_index: np.ndarray,
-    act_u: np.ndarray,
+    active: tuple[np.ndarray, np.ndarray, np.ndarray],
     grad_s: np.ndarray,
     surrogate: np.ndarray,
-    eps: np.ndarray,
-    out_shape: tuple[int, int],
+    alpha: np.ndarray,
+    taps: int,
     inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
-    in_width: int,
     weight: np.ndarray,
-    stride: int,
+    geometry: np.ndarray,
+    out_pixels: int,
     rows: tuple[np.ndarray, np.ndarray],
     cols: tuple[np.ndarray, np.ndarray],
     below: tuple[np.ndarray, np.ndarray],
-    want_below: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Weight gradient of one layer and ∂L/∂s of the layer below at its active pairs.
 
     Args:
-        act_offsets, act_index, act_u: this layer's pairs within the surrogate's support.
-        grad_s: ∂L/∂s at those pairs (aligned with ``act_index``).
+        active: (offsets, flat indices, potentials u) of this layer's pairs within the
+            surrogate's support; grad_s: ∂L/∂s at those pairs (aligned with the indices).
         surrogate: [θ, scale_rho/θ, −1/(tau_rho·θ)] in the weight's dtype: ρ(u) =
             scale_rho/θ·exp(−|u − θ|/(tau_rho·θ)) at the recorded pairs.
-        eps: the PSP taps ε[0 … L−1] (ε[0] = 0), the weight's dtype.
-        out_shape: (height, width) of the output map, px.
+        alpha, taps: the PSP kernel ε[k] = c·k·pᵏ, k < L = ``taps`` steps
+            (:func:`spikegyro.snn.sparse_forward.alpha_constants`).
         inputs: (offsets, flat indices, values) of this layer's input, as in the forward pass.
-        in_width: input map width; weight: (kh, kw, C_in, C_out); rows, cols: fan-out tables.
-        below: (offsets, flat indices) of the active pairs of the layer below (the input side).
-        want_below: compute ∂L/∂s there (False for the first layer that learns).
+        weight: (kh·kw, C_in, C_out); geometry, out_pixels, rows, cols: as in the forward pass.
+        below: (offsets, flat indices) of the active pairs of the layer below (the input side);
+            an empty index list when its gradient is not wanted.
 
     Returns:
-        (∂L/∂W (kh, kw, C_in, C_out), ∂L/∂s_in at the pairs of ``below``).
+        (∂L/∂W (kh·kw, C_in, C_out), ∂L/∂s_in at the pairs of ``below``).
     """
+    act_offsets, act_index, act_u = active
     steps = act_offsets.size - 1
-    cout = weight.shape[3]
-    taps = eps.size
-    out_width = out_shape[1]
-    pixels = out_shape[0] * out_width
-    in_offsets, in_index, in_values = inputs
-    below_offsets, below_index = below
-    theta, height, slope = surrogate[0], surrogate[1], surrogate[2]
+    cout = weight.shape[2]
+    delta = _deltas(act_u, grad_s, surrogate)
     grad_w = np.zeros_like(weight)
-    grad_below = np.zeros(below_index.size if want_below else 0, weight.dtype)
-    ring = np.zeros((taps, pixels * cout), weight.dtype)
-    # Earliest step whose δ was added at each pixel: ∂L/∂z[t] there may be non-zero only if it
-    # is at most t + L − 1.
-    touched = np.full(pixels, _FUTURE, np.int64)
+    grad_below = np.zeros(below[1].size, weight.dtype)
+    state = np.zeros((2, out_pixels * cout), weight.dtype)
+    grad_z = np.zeros(out_pixels * cout, weight.dtype)
+    reach = np.empty((2, weight.shape[0]), np.int64)
+    # Per pixel, the step at which its last δ leaves the kernel (the state is cleared there);
+    # ∂L/∂z may be non-zero only at the steps above it, back to the last δ ("never": _FUTURE).
+    live = np.full(out_pixels, _FUTURE, np.int64)
     for t in range(steps - 1, -1, -1):
-        slot = ring[t % taps]
-        horizon = t + taps - 1
-        _weight_grad_at(grad_w, slot, touched, horizon, in_index, in_values, in_offsets[t],
-                        in_offsets[t + 1], stride, in_width, out_width, rows, cols)  # fmt: skip
-        if want_below:
-            _input_grad_at(grad_below, weight, slot, touched, horizon, below_index,
-                           below_offsets[t], below_offsets[t + 1], stride, in_width, out_width,
-                           rows, cols)  # fmt: skip
-        for pixel in range(pixels):
-            if touched[pixel] <= horizon:
-                slot[pixel * cout : (pixel + 1) * cout] = 0.0
-        for j in range(act_offsets[t], act_offsets[t + 1]):
-            delta = height * np.exp(slope * abs(act_u[j] - theta)) * grad_s[j]
-            n = act_index[j]
-            for k in range(1, min(taps, t + 1)):
-                ring[(t - k) % taps, n] += eps[k] * delta
-            if t > 0:
-                touched[n // cout] = t
+        if t + taps < steps:  # the δ of step t + L leave the kernel
+            _feed(state, act_index, delta, act_offsets[t + taps], act_offsets[t + taps + 1],
+                  alpha[3], alpha[4], live[:0], 0)  # fmt: skip
+        _feed(state, act_index, delta, act_offsets[t], act_offsets[t + 1], alpha[2], 0.0, live,
+              t - taps)  # fmt: skip
+        _adjoint_step(state, grad_z, live, t, alpha)
+        _weight_grad_at(grad_w, grad_z, live, t, inputs, geometry, rows, cols, reach)
+        if below[1].size:
+            _input_grad_at(grad_below, weight, grad_z, live, t, below, geometry, rows, cols,
+                           reach)  # fmt: skip
     return grad_w, grad_below

@@ -4,6 +4,9 @@ The layer computes, step by step (Ts = 1 ms), exactly what :class:`spikegyro.snn
 computes in batch: ``z[t] = conv(s_in[t])``, ``v[t] = Σ_k ε[k]·z[t − k]``, ``u[t] = v[t] +
 Σ_k ν[k]·s_out[t − k]``, ``s_out[t] = u[t] ≥ θ``. It touches only what the input spikes reach:
 
+- the convolution is a scatter: each input spike adds one weight column (C_out values) to each
+  output pixel it reaches, in a ring of L + 1 synaptic maps ``z``; the spikes of one input pixel
+  (adjacent in the lists) share their targets;
 - the PSP runs on the output side as the double pole ``(A, D)`` of the truncated alpha kernel
   ε[k] = c·k·pᵏ (k < L), with each input fed a second time L steps later with the tail weights,
   so that the response is exactly 0 from k = L on (the same recursion as
@@ -16,7 +19,8 @@ computes in batch: ``z[t] = conv(s_in[t])``, ``v[t] = Σ_k ε[k]·z[t − k]``, 
   potential maps (the batch path adds the same taps to the same future rows);
 - a pixel (all output channels at one position) is visited only while some input of the last
   L steps or some own spike of the last M−1 steps may still act on it; when its last input has
-  expired its state is set to exactly 0.
+  expired its state is set to exactly 0. Adjacent live pixels are advanced as one run of
+  contiguous neurons, in one branch-free loop that vectorises; thresholding is a second pass.
 
 Besides the output spike lists, the pass records every (neuron, step) pair whose potential lies
 within the surrogate's support, |u − θ| ≤ half-width, with u: the only pairs where the backward
@@ -24,7 +28,9 @@ pass (:mod:`spikegyro.snn.sparse_backward`) has a non-zero ρ(u). The half-width
 cut above exp(−1/tau_rho) of the peak), so that a neuron at rest (u = 0) is never such a pair.
 
 Spike lists are CSR by step: ``offsets`` (T + 1,) int64 and flat neuron indices
-``(y·W + x)·C + c`` (int32), channels-last like the weights ``(kh, kw, C_in, C_out)``.
+``(y·W + x)·C + c`` (int32), channels-last like the weights ``(kh·kw, C_in, C_out)``. The
+geometry of a layer is the int64 array ``[stride, in_width, out_width, kernel_w]`` with the
+fan-out tables of :func:`fanout_tables` for its rows and columns.
 """
 
 from __future__ import annotations
@@ -37,10 +43,10 @@ _MIN_CAPACITY = 1024
 
 @numba.njit(cache=True, nogil=True)
 def _grow(array: np.ndarray, size: int) -> np.ndarray:
-    """``array`` if it holds more than ``size`` entries, else a copy twice as large."""
-    if size < array.size:
+    """``array`` if it holds at least ``size`` entries, else a copy at least twice as large."""
+    if size <= array.size:
         return array
-    bigger = np.empty(max(2 * array.size, _MIN_CAPACITY), array.dtype)
+    bigger = np.empty(max(2 * array.size, size, _MIN_CAPACITY), array.dtype)
     bigger[: array.size] = array
     return bigger
 
@@ -94,6 +100,39 @@ def fanout_tables(
 
 
 @numba.njit(cache=True, nogil=True)
+def pixel_group(index: np.ndarray, start: int, stop: int, cin: int) -> tuple[int, int]:
+    """(input pixel of ``index[start]``, end of the run of entries at that pixel within
+    ``start:stop``): entries of one pixel are adjacent in a list sorted by flat index."""
+    pixel = index[start] // cin
+    end = start + 1
+    while end < stop and index[end] // cin == pixel:
+        end += 1
+    return pixel, end
+
+
+@numba.njit(cache=True, nogil=True)
+def targets(
+    pixel_in: int,
+    geometry: np.ndarray,
+    rows: tuple[np.ndarray, np.ndarray],
+    cols: tuple[np.ndarray, np.ndarray],
+    out: np.ndarray,
+) -> int:
+    """Fill ``out[0, :n]`` with the output pixels an input pixel reaches and ``out[1, :n]`` with
+    the kernel tap ky·kw + kx that connects them; returns n."""
+    stride, in_width, out_width, kernel_w = geometry[0], geometry[1], geometry[2], geometry[3]
+    iy, ix = divmod(pixel_in, in_width)
+    n = 0
+    for oy in range(rows[0][iy], rows[1][iy] + 1):
+        ky = iy - oy * stride
+        for ox in range(cols[0][ix], cols[1][ix] + 1):
+            out[0, n] = oy * out_width + ox
+            out[1, n] = ky * kernel_w + ix - ox * stride
+            n += 1
+    return n
+
+
+@numba.njit(cache=True, nogil=True)
 def _scatter(
     synaptic: np.ndarray,
     live: np.ndarray,
@@ -103,32 +142,28 @@ def _scatter(
     start: int,
     stop: int,
     weight: np.ndarray,
-    stride: int,
-    in_width: int,
-    out_width: int,
+    geometry: np.ndarray,
     rows: tuple[np.ndarray, np.ndarray],
     cols: tuple[np.ndarray, np.ndarray],
+    reach: np.ndarray,
 ) -> None:
-    """Add ``value·W[ky, kx, c, :]`` to the synaptic input map of every output pixel each input
+    """Add ``value·W[tap, c, :]`` to the synaptic input map of every output pixel each input
     ``start:stop`` reaches (the convolution as a scatter from its non-zero inputs)."""
-    kernel_w, cin, cout = weight.shape[1], weight.shape[2], weight.shape[3]
-    for i in range(start, stop):
-        pixel_in, c = divmod(index[i], cin)
-        iy, ix = divmod(pixel_in, in_width)
-        value = values[i]
-        for oy in range(rows[0][iy], rows[1][iy] + 1):
-            ky = iy - oy * stride
-            for ox in range(cols[0][ix], cols[1][ix] + 1):
-                kx = ix - ox * stride
-                if kx >= kernel_w:
-                    continue
-                pixel = oy * out_width + ox
-                # Slice views let LLVM vectorise the loop (no wrap-around checks on indices).
-                target = synaptic[pixel * cout : (pixel + 1) * cout]
-                w = weight[ky, kx, c]
+    cin, cout = weight.shape[1], weight.shape[2]
+    i = start
+    while i < stop:
+        pixel_in, end = pixel_group(index, i, stop, cin)
+        for k in range(targets(pixel_in, geometry, rows, cols, reach)):
+            pixel, tap = reach[0, k], reach[1, k]
+            # Slice views let LLVM vectorise the loop (no wrap-around checks on indices).
+            target = synaptic[pixel * cout : (pixel + 1) * cout]
+            for e in range(i, end):
+                w = weight[tap, index[e] - pixel_in * cin]
+                value = values[e]
                 for o in range(cout):
                     target[o] += value * w[o]
-                live[pixel] = max(live[pixel], live_until)
+            live[pixel] = max(live[pixel], live_until)
+        i = end
 
 
 def alpha_constants(kernel: np.ndarray, dtype: type) -> tuple[np.ndarray, int]:
@@ -152,104 +187,171 @@ def alpha_constants(kernel: np.ndarray, dtype: type) -> tuple[np.ndarray, int]:
 
 
 @numba.njit(cache=True, nogil=True)
+def _advance(
+    state: np.ndarray,
+    z_now: np.ndarray,
+    z_old: np.ndarray,
+    refractory: np.ndarray,
+    potential: np.ndarray,
+    n0: int,
+    n1: int,
+    alpha: np.ndarray,
+) -> None:
+    """u[t] of the neurons ``n0:n1`` into ``potential`` and one step of their recursions; takes
+    in z[t] and the tail of z[t − L] (its slot is cleared for z[t + 1]) and the refractory
+    responses due now (cleared). Branch-free over contiguous memory, so it vectorises."""
+    c_eps, p_eps, tail_a, tail_d = alpha[0], alpha[1], alpha[3], alpha[4]
+    a, d, u = state[0, n0:n1], state[1, n0:n1], potential[n0:n1]
+    z, old, ref = z_now[n0:n1], z_old[n0:n1], refractory[n0:n1]
+    for o in range(n1 - n0):  # a = p·A[t−1], d = p·(D[t−1] + A[t−1]) from the last step
+        dd = d[o] + tail_d * old[o]
+        aa = a[o] + z[o] + tail_a * old[o]
+        u[o] = c_eps * dd + ref[o]
+        d[o] = p_eps * (dd + aa)
+        a[o] = p_eps * aa
+        old[o] = 0.0
+        ref[o] = 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _threshold(
+    potential: np.ndarray,
+    n0: int,
+    n1: int,
+    theta: float,
+    half_width: float,
+    record: bool,
+    lists: tuple[np.ndarray, np.ndarray, np.ndarray],
+    counts: np.ndarray,
+) -> None:
+    """Append the neurons ``n0:n1`` with u ≥ θ to the spike list and, with ``record``, those with
+    |u − θ| ≤ half-width (and their u) to the active lists; ``counts`` = [spikes, active]."""
+    spikes, act_index, act_u = lists
+    n_spikes, n_act = counts[0], counts[1]
+    # Branch-free compaction (every neuron is written, the count advances only where the test
+    # holds; the lists have room for all): a branch taken at random 5-15 % of the time would be
+    # mispredicted at every few neurons.
+    if record:
+        for n in range(n0, n1):
+            u = potential[n]
+            act_index[n_act] = n
+            act_u[n_act] = u
+            n_act += abs(u - theta) <= half_width
+            spikes[n_spikes] = n
+            n_spikes += u >= theta
+    else:
+        for n in range(n0, n1):
+            spikes[n_spikes] = n
+            n_spikes += potential[n] >= theta
+    counts[0], counts[1] = n_spikes, n_act
+
+
+@numba.njit(cache=True, nogil=True)
+def _refract(
+    spikes: np.ndarray, ring: np.ndarray, ref_taps: np.ndarray, live: np.ndarray, t: int, cout: int
+) -> None:
+    """Add ν[1 … M−1] of each new spike to its neuron's next M − 1 potential maps and keep its
+    pixel live until they are used."""
+    ring_len = ref_taps.size
+    for n in spikes:
+        for k in range(1, ring_len):
+            ring[(t + k) % ring_len, n] += ref_taps[k]
+        pixel = n // cout
+        live[pixel] = max(live[pixel], t + ring_len - 1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _update(
+    state: np.ndarray,
+    z_now: np.ndarray,
+    z_old: np.ndarray,
+    refractory: np.ndarray,
+    potential: np.ndarray,
+    live: np.ndarray,
+    t: int,
+    alpha: np.ndarray,
+    thresholds: tuple[float, float, bool],
+    lists: tuple[np.ndarray, np.ndarray, np.ndarray],
+    counts: np.ndarray,
+) -> None:
+    """Step ``t`` of every live pixel, in runs of adjacent ones; a pixel whose last input and own
+    spike have expired has its state cleared (the rounding residue of the tail) and leaves."""
+    theta, half_width, record = thresholds
+    cout = state.shape[1] // live.size
+    pixel = 0
+    while pixel < live.size:
+        if live[pixel] < t:
+            pixel += 1
+            continue
+        end = pixel + 1
+        while end < live.size and live[end] >= t:
+            end += 1
+        n0, n1 = pixel * cout, end * cout
+        _advance(state, z_now, z_old, refractory, potential, n0, n1, alpha)
+        _threshold(potential, n0, n1, theta, half_width, record, lists, counts)
+        for q in range(pixel, end):
+            if live[q] == t:  # every input has left the kernel
+                state[:, q * cout : (q + 1) * cout] = 0.0
+        pixel = end
+
+
+@numba.njit(cache=True, nogil=True)
 def layer_forward(
-    in_offsets: np.ndarray,
-    in_index: np.ndarray,
-    in_values: np.ndarray,
-    in_width: int,
+    inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
     weight: np.ndarray,
-    stride: int,
-    out_shape: tuple[int, int],
+    geometry: np.ndarray,
+    out_pixels: int,
     rows: tuple[np.ndarray, np.ndarray],
     cols: tuple[np.ndarray, np.ndarray],
     alpha: np.ndarray,
     taps: int,
     ref_taps: np.ndarray,
-    theta: float,
-    half_width: float,
-    record: bool,
+    thresholds: tuple[float, float, bool],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Run one layer over all steps; see the module docstring.
 
     Args:
-        in_offsets, in_index, in_values: the input lists (CSR by step; values multiply W).
-        in_width: input map width, px.
-        weight: (kh, kw, C_in, C_out), the dtype of the computation (float32 or float64).
-        out_shape: (height, width) of the output map; rows, cols: :func:`fanout_tables`.
+        inputs: offsets, flat indices, values of the input lists (CSR by step; values multiply W).
+        weight: (kh·kw, C_in, C_out), the dtype of the computation (float32 or float64).
+        geometry: [stride, input width, output width, kernel width] (px); out_pixels: output
+            height × width; rows, cols: :func:`fanout_tables`.
         alpha: [c, p, 1, −pᴸ, −L·pᴸ] of the PSP kernel ε[k] = c·k·pᵏ for k < L = ``taps``
             (steps), in the weight's dtype (:func:`alpha_constants`).
         ref_taps: ν[0 … M−1] (ν[0] = 0), potential units, in the weight's dtype.
-        theta, half_width: threshold and the surrogate's support |u − θ| <= half_width, as
-            scalars of the weight's dtype: the comparisons are then made in that precision,
-            as the batch path makes them.
-        record: keep the pairs within the support (only a layer that back-propagates needs them).
+        thresholds: (θ, half-width of the surrogate's support, record): θ and the half-width as
+            scalars of the weight's dtype, so that the comparisons are made in that precision as
+            the batch path makes them; record: keep the pairs within the support (only a layer
+            that back-propagates needs them).
 
     Returns:
         (spike offsets, spike indices, active offsets, active indices, active potentials u).
     """
+    in_offsets, in_index, in_values = inputs
     steps = in_offsets.size - 1
-    cout = weight.shape[3]
-    out_height, out_width = out_shape
-    pixels = out_height * out_width
+    neurons = out_pixels * weight.shape[2]
     dtype = weight.dtype
-    c_eps, p_eps, tail_a, tail_d = alpha[0], alpha[1], alpha[3], alpha[4]
-    state_a = np.zeros(pixels * cout, dtype)
-    state_d = np.zeros(pixels * cout, dtype)
+    state = np.zeros((2, neurons), dtype)  # p·A[t−1], p·(D[t−1] + A[t−1])
     # z[t] of the last L + 1 steps: z[t − L] leaves the PSP through the tail weights.
-    synaptic = np.zeros((taps + 1, pixels * cout), dtype)
-    ring_len = ref_taps.size
-    ring = np.zeros((ring_len, pixels * cout), dtype)
-    potential = np.empty(cout, dtype)
-    live = np.full(pixels, -1, np.int64)
-    spike_offsets = np.zeros(steps + 1, np.int64)
-    spikes = np.empty(_MIN_CAPACITY, np.int32)
-    act_offsets = np.zeros(steps + 1, np.int64)
-    act_index = np.empty(_MIN_CAPACITY, np.int32)
-    act_u = np.empty(_MIN_CAPACITY, dtype)
-    n_spikes = 0
-    n_act = 0
+    synaptic = np.zeros((taps + 1, neurons), dtype)
+    ring = np.zeros((ref_taps.size, neurons), dtype)
+    potential = np.empty(neurons, dtype)
+    live = np.full(out_pixels, -1, np.int64)
+    reach = np.empty((2, weight.shape[0]), np.int64)
+    offsets = np.zeros((2, steps + 1), np.int64)  # spikes, active pairs
+    lists = (np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, dtype))
+    counts = np.zeros(2, np.int64)
     for t in range(steps):
         z_now = synaptic[t % (taps + 1)]
-        z_old = synaptic[(t + 1) % (taps + 1)]  # z[t − L]; becomes z[t + 1]'s slot
         _scatter(z_now, live, t + taps, in_index, in_values, in_offsets[t], in_offsets[t + 1],
-                 weight, stride, in_width, out_width, rows, cols)  # fmt: skip
-        refractory = ring[t % ring_len]
-        for pixel in range(pixels):
-            if live[pixel] < t:
-                continue
-            lo, hi = pixel * cout, (pixel + 1) * cout
-            a, d, z = state_a[lo:hi], state_d[lo:hi], z_now[lo:hi]
-            old, ref = z_old[lo:hi], refractory[lo:hi]
-            for o in range(cout):  # a = p·A[t−1], d = p·(D[t−1] + A[t−1]) from the last step
-                dd = d[o] + tail_d * old[o]
-                aa = a[o] + z[o] + tail_a * old[o]
-                potential[o] = c_eps * dd + ref[o]
-                d[o] = p_eps * (dd + aa)
-                a[o] = p_eps * aa
-                old[o] = 0.0
-                ref[o] = 0.0
-            if live[pixel] == t:  # every input has left the kernel: clear the rounding residue
-                a[:] = 0.0
-                d[:] = 0.0
-            spikes = _grow(spikes, n_spikes + cout)
-            if record:
-                act_index = _grow(act_index, n_act + cout)
-                act_u = _grow(act_u, n_act + cout)
-            fired = False
-            for o in range(cout):
-                u = potential[o]
-                if record and abs(u - theta) <= half_width:
-                    act_index[n_act] = lo + o
-                    act_u[n_act] = u
-                    n_act += 1
-                if u >= theta:
-                    spikes[n_spikes] = lo + o
-                    n_spikes += 1
-                    fired = True
-                    for k in range(1, ring_len):
-                        ring[(t + k) % ring_len, lo + o] += ref_taps[k]
-            if fired:
-                live[pixel] = max(live[pixel], t + ring_len - 1)
-        spike_offsets[t + 1] = n_spikes
-        act_offsets[t + 1] = n_act
-    return spike_offsets, spikes[:n_spikes], act_offsets, act_index[:n_act], act_u[:n_act]
+                 weight, geometry, rows, cols, reach)  # fmt: skip
+        # Room for every neuron of the step, so that the passes below need not check.
+        active_room = counts[1] + neurons if thresholds[2] else 0
+        lists = (_grow(lists[0], counts[0] + neurons), _grow(lists[1], active_room),
+                 _grow(lists[2], active_room))  # fmt: skip
+        first = counts[0]
+        _update(state, z_now, synaptic[(t + 1) % (taps + 1)], ring[t % ref_taps.size], potential,
+                live, t, alpha, thresholds, lists, counts)  # fmt: skip
+        _refract(lists[0][first : counts[0]], ring, ref_taps, live, t, weight.shape[2])
+        offsets[:, t + 1] = counts
+    spikes, act_index, act_u = lists
+    return offsets[0], spikes[: counts[0]], offsets[1], act_index[: counts[1]], act_u[: counts[1]]
