@@ -131,6 +131,96 @@ def accumulated_frames(
     return _like(counts.view(2, height, width), x)
 
 
+LOG_POLAR_R_MIN = 2.0
+"""Default inner radius (px) of the log-polar grid: events closer to the centre are left out of
+it (their angle is not resolved by the pixel grid); the Cartesian channels still hold them."""
+
+
+def log_polar_coordinates(
+    x: ArrayLike,
+    y: ArrayLike,
+    *,
+    height: int,
+    width: int,
+    centre: tuple[float, float],
+    r_min: float = LOG_POLAR_R_MIN,
+) -> tuple[ArrayLike, ArrayLike, ArrayLike]:
+    """Events' cells on a log-polar grid of the same ``height`` x ``width`` around ``centre``.
+
+    Column = angle: ``col = floor(width * a / 2π)`` with ``a = atan2(y - cy, x - cx)`` taken in
+    [0, 2π) (radians, image axes: x right, y down). Row = log radius:
+    ``row = floor(height * ln(r / r_min) / ln(r_max / r_min))``, r the distance to the centre
+    in pixels and r_max the distance to the farthest image corner, so rows run from the centre
+    (row 0) outwards. A rotation of the image by φ about the centre (a roll, when ``centre`` is
+    the principal point and fx = fy) moves every event ``width * φ / 2π`` columns along the
+    rows: a horizontal translation, the same at every radius. A radial scaling by s moves it
+    ``height * ln(s) / ln(r_max / r_min)`` rows.
+
+    Args:
+        x, y: pixel coordinates (integer or real; pixel centres at integers).
+        height, width: size of the image and of the log-polar grid, pixels and cells.
+        centre: (cx, cy), pixels: usually the principal point.
+        r_min: inner radius, pixels; events nearer the centre get ``keep = False``.
+
+    Returns:
+        (col, row, keep): int64 cells (clamped into the grid) and the boolean mask of events
+        at ``r >= r_min``, of the kind (NumPy or torch) that ``x`` is.
+    """
+    if height < 1 or width < 1 or r_min <= 0:
+        raise InputError(f"log-polar grid {width}x{height} with r_min {r_min}: need sizes >= 1 "
+                         "and r_min > 0.")  # fmt: skip
+    cx, cy = float(centre[0]), float(centre[1])
+    dx = _as_tensor(x).to(torch.float64) - cx
+    dy = _as_tensor(y).to(torch.float64) - cy
+    corners = [(a - cx) ** 2 + (b - cy) ** 2 for a in (0, width - 1) for b in (0, height - 1)]
+    r_max = max(max(corners) ** 0.5, r_min * 1.01)
+    radius = torch.hypot(dx, dy)
+    angle = torch.remainder(torch.atan2(dy, dx), 2 * torch.pi)
+    col = torch.floor(angle * (width / (2 * torch.pi))).long().clamp(0, width - 1)
+    log_r = torch.log(radius.clamp(min=r_min) / r_min) / np.log(r_max / r_min)
+    row = torch.floor(log_r * height).long().clamp(0, height - 1)
+    keep = radius >= r_min
+    return _like(col, x), _like(row, x), _like(keep, x)
+
+
+def log_polar_pixel_map(
+    height: int, width: int, centre: tuple[float, float], r_min: float = LOG_POLAR_R_MIN
+) -> torch.Tensor:
+    """Flat log-polar cell (``row * width + col``) of every pixel, (height * width,) int64 in
+    row-major pixel order; pixels inside ``r_min`` map to ``height * width`` (no cell)."""
+    ys, xs = torch.meshgrid(torch.arange(height), torch.arange(width), indexing="ij")
+    col, row, keep = log_polar_coordinates(
+        xs.reshape(-1), ys.reshape(-1), height=height, width=width, centre=centre, r_min=r_min
+    )
+    return torch.where(keep, row * width + col, torch.full_like(col, height * width))
+
+
+def log_polar_spikes(
+    spikes: torch.Tensor, pixel_map: torch.Tensor, *, spatial_dim: int
+) -> torch.Tensor:
+    """Re-map binary spike maps to the log-polar grid of :func:`log_polar_pixel_map`.
+
+    ``spikes`` has the image's height and width at ``spatial_dim`` and ``spatial_dim + 1``; a
+    cell is 1 when any pixel mapped to it is (a max, so the result equals binning the
+    log-polar coordinates of the events themselves with :func:`spike_tensor`). Same shape and
+    dtype as ``spikes``.
+    """
+    shape = spikes.shape
+    height, width = shape[spatial_dim], shape[spatial_dim + 1]
+    if pixel_map.numel() != height * width:
+        raise InputError(f"log-polar map of {pixel_map.numel()} pixels for a {width}x{height} "
+                         "input; build the map for the input's size.")  # fmt: skip
+    flat = spikes.reshape(*shape[:spatial_dim], height * width, *shape[spatial_dim + 2 :])
+    index_shape = [1] * flat.dim()
+    index_shape[spatial_dim] = height * width
+    index = pixel_map.to(spikes.device).view(index_shape).expand_as(flat)
+    out_shape = list(flat.shape)
+    out_shape[spatial_dim] = height * width + 1  # the last cell collects the dropped centre
+    out = torch.zeros(out_shape, dtype=spikes.dtype, device=spikes.device)
+    out.scatter_reduce_(spatial_dim, index, flat, reduce="amax")
+    return out.narrow(spatial_dim, 0, height * width).reshape(shape)
+
+
 def check_window(num_events: int, source: str, t_start_us: int, t_end_us: int) -> None:
     """Raise a clear :class:`InputError` for an empty event window."""
     if num_events == 0:

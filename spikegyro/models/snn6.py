@@ -29,11 +29,17 @@ views of time-major, channels-last storage.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import torch
 from torch import nn
 
 from spikegyro.errors import InputError
+from spikegyro.events.representations import (
+    LOG_POLAR_R_MIN,
+    log_polar_pixel_map,
+    log_polar_spikes,
+)
 from spikegyro.models.registry import register
 from spikegyro.snn.layers import GASP, RegionPool, SRMConv, SRMDense, SRMParams
 from spikegyro.snn.sparse import EventDrivenStack
@@ -62,6 +68,13 @@ READOUT = SRMParams(tau_s=8.0)
 
 KERNEL_SIZE = 3
 
+
+def scaled_taus(params: SRMParams, factor: float) -> SRMParams:
+    """``params`` with τs and τr (ms) multiplied by ``factor`` (a longer memory)."""
+    if factor == 1.0:
+        return params
+    return replace(params, tau_s=params.tau_s * factor, tau_r=params.tau_r * factor)
+
 INIT_GAIN = 1.5
 """Weight init: uniform in ±INIT_GAIN/√fan_in per layer (1.0 is PyTorch's and the official
 default). At 1.0, uniform random input spikes at 1 % density leave layer 5 silent, and a silent
@@ -78,6 +91,15 @@ class SNN6(nn.Module):
         init_gain: weight init scale, uniform in ±init_gain/√fan_in per layer.
         readout_grid: (rows, columns) of the spike pooling before the dense readout; (1, 1) is
             the paper's global average spike pooling (GASP).
+        log_polar: also feed conv1 the input re-mapped to a log-polar grid of the same size
+            around ``log_polar_centre`` (channels ``in_channels`` … ``2·in_channels − 1``; see
+            :func:`spikegyro.events.representations.log_polar_coordinates`): there a roll is a
+            horizontal translation of the same size at every radius, also near the centre.
+        log_polar_centre: (cx, cy) of the log-polar grid in input pixels; None: (W/2, H/2), the
+            simulator's principal point (exact at scale 1, a quarter pixel off at scale 0.5).
+        log_polar_r_min: inner radius of the log-polar grid, input pixels.
+        tau_scale: factor on τs and τr of every spiking layer (a longer memory; 1 = the paper).
+        readout_tau: τs of the readout's PSP, ms (8 = the paper).
     """
 
     def __init__(
@@ -85,11 +107,25 @@ class SNN6(nn.Module):
         in_channels: int = 2,
         init_gain: float = INIT_GAIN,
         readout_grid: tuple[int, int] = (1, 1),
+        log_polar: bool = False,
+        log_polar_centre: tuple[float, float] | None = None,
+        log_polar_r_min: float = LOG_POLAR_R_MIN,
+        tau_scale: float = 1.0,
+        readout_tau: float = READOUT.tau_s,
     ) -> None:
         super().__init__()
+        if not (tau_scale > 0 and readout_tau > 0):
+            raise InputError(
+                f"SNN-6 with tau_scale {tau_scale}, readout_tau {readout_tau}: both must be > 0."
+            )
         self.in_channels = in_channels
         self.readout_grid = (int(readout_grid[0]), int(readout_grid[1]))
-        channels = in_channels
+        self.log_polar = bool(log_polar)
+        self.log_polar_centre = None if log_polar_centre is None else tuple(log_polar_centre)
+        self.log_polar_r_min = float(log_polar_r_min)
+        self._pixel_maps: dict[tuple[int, int], torch.Tensor] = {}
+        # The log-polar copy of the input enters conv1 as extra channels.
+        channels = in_channels * (2 if self.log_polar else 1)
         convs = []
         for i, spec in enumerate(SNN6_LAYERS):
             # Layers 2-5 see the spikes of the layer before; the input may hold event counts.
@@ -97,7 +133,7 @@ class SNN6(nn.Module):
                 SRMConv(
                     channels,
                     spec.out_channels,
-                    spec.params,
+                    scaled_taus(spec.params, tau_scale),
                     KERNEL_SIZE,
                     spec.stride,
                     binary_input=i > 0,
@@ -108,7 +144,7 @@ class SNN6(nn.Module):
         self.conv1, self.conv2, self.conv3, self.conv4, self.conv5 = convs
         cells = self.readout_grid[0] * self.readout_grid[1]
         self.pool = GASP() if cells == 1 else RegionPool(self.readout_grid)
-        self.fc = SRMDense(channels * cells, 3, READOUT)
+        self.fc = SRMDense(channels * cells, 3, replace(READOUT, tau_s=float(readout_tau)))
         self.reset_parameters(init_gain)
 
     @property
@@ -177,9 +213,26 @@ class SNN6(nn.Module):
                 f"{side}x{side} px (5 unpadded 3x3 convolutions); use a larger sensor or scale."
             )
 
+    def with_log_polar(self, spikes: torch.Tensor) -> torch.Tensor:
+        """The network's conv1 input: the spikes, plus their log-polar copy when the model has
+        one, (N, C, H, W, T) -> (N, 2C, H, W, T) in time-major storage like the input."""
+        if not self.log_polar:
+            return spikes
+        height, width = spikes.shape[2:4]
+        key = (height, width)
+        if key not in self._pixel_maps:
+            centre = self.log_polar_centre or (width / 2, height / 2)
+            self._pixel_maps[key] = log_polar_pixel_map(
+                height, width, centre, self.log_polar_r_min
+            )
+        time_major = spikes.permute(4, 0, 1, 2, 3)  # (T, N, C, H, W), a view of the storage
+        mapped = log_polar_spikes(time_major, self._pixel_maps[key], spatial_dim=3)
+        return torch.cat([time_major, mapped], dim=2).permute(1, 2, 3, 4, 0)
+
     def _run(self, x: torch.Tensor, keep_spikes: bool) -> tuple[torch.Tensor, list[torch.Tensor]]:
         self._check_input(x)
         spikes = x if x.is_floating_point() else x.to(self.fc.weight.dtype)
+        spikes = self.with_log_polar(spikes)
         engine = self.event_engine
         if engine is not None and not keep_spikes and x.device.type == "cpu":
             return self.fc(engine.pooled(spikes)), []
@@ -201,15 +254,19 @@ class SNN6(nn.Module):
 
 @register("snn6-grid")
 def snn6_grid(
-    in_channels: int = 2, init_gain: float = INIT_GAIN, grid: tuple[int, int] = (2, 3)
+    in_channels: int = 2,
+    init_gain: float = INIT_GAIN,
+    grid: tuple[int, int] = (2, 3),
+    **options: Any,
 ) -> SNN6:
     """SNN-6 whose readout pools layer 5 per cell of a coarse grid instead of globally.
 
     A test of the hypothesis in docs/evaluation.md ("Real recordings"): GASP hides where a feature
     fired, and roll's flow field depends on position. At 240x180, layer 5 is 12x8, so the
-    default 2x3 grid has cells of 4x4 neurons.
+    default 2x3 grid has cells of 4x4 neurons; at 120x90 (4x2) use a grid of (2, 2).
+    ``options``: the other :class:`SNN6` arguments (log_polar, tau_scale, ...).
     """
-    return SNN6(in_channels, init_gain, readout_grid=grid)
+    return SNN6(in_channels, init_gain, readout_grid=grid, **options)
 
 
 def grid_state_from_global(
@@ -226,3 +283,40 @@ def grid_state_from_global(
         raise InputError("grid_state_from_global: the network already pools on a grid.")
     cells = grid[0] * grid[1]
     return {**state, "fc.weight": state["fc.weight"].repeat_interleave(cells, dim=1) / cells}
+
+
+def _kernel_area(kernel: torch.Tensor) -> float:
+    """Sum of a PSP kernel's taps: the potential a steady input of one spike per ms builds."""
+    return float(kernel.double().sum())
+
+
+def adapt_state(state: dict[str, torch.Tensor], model: SNN6) -> dict[str, torch.Tensor]:
+    """A state dict of another SNN-6 variant made to fit ``model``, computing (nearly) what the
+    source network computes: the start point of ``train --init`` across variants.
+
+    - GASP -> grid readout: :func:`grid_state_from_global` (exact for a grid dividing layer 5).
+    - More conv1 input channels (the log-polar copy): the extra channels get zero weights, so
+      the network's output is unchanged until training moves them.
+    - Other time constants (``tau_scale``, ``readout_tau``): the model keeps its own kernels and
+      each layer's weights are multiplied by (source kernel area / new kernel area), which keeps
+      the potential a steady input rate builds (the response to a single spike changes).
+    """
+    state = dict(state)
+    if model.readout_grid != (1, 1) and state["fc.weight"].shape[1] != model.fc.weight.shape[1]:
+        state = grid_state_from_global(state, model.readout_grid)
+    weight = state["conv1.weight"]
+    extra = model.conv1.weight.shape[1] - weight.shape[1]
+    if extra > 0:
+        zeros = weight.new_zeros(weight.shape[0], extra, *weight.shape[2:])
+        state["conv1.weight"] = torch.cat([weight, zeros], dim=1)
+    layers = [(f"conv{i + 1}", conv) for i, conv in enumerate(model.convs)] + [("fc", model.fc)]
+    for name, layer in layers:
+        own = layer.srm_kernel
+        stored = state.get(f"{name}.srm_kernel")
+        if stored is not None and (stored.shape != own.shape or not torch.equal(stored, own)):
+            ratio = _kernel_area(stored) / _kernel_area(own)
+            state[f"{name}.weight"] = state[f"{name}.weight"] * ratio
+        for buffer in ("srm_kernel", "ref_kernel"):
+            if hasattr(layer, buffer):
+                state[f"{name}.{buffer}"] = getattr(layer, buffer).detach().clone()
+    return state

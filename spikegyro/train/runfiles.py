@@ -19,7 +19,7 @@ from torch import nn
 from spikegyro.errors import InputError
 from spikegyro.events.io import atomic_path
 from spikegyro.models.registry import read_checkpoint, training_before, training_total
-from spikegyro.models.snn6 import grid_state_from_global
+from spikegyro.models.snn6 import SNN6, adapt_state
 from spikegyro.train.presets import TrainConfig
 from spikegyro.train.throughput import BareStep
 
@@ -229,8 +229,9 @@ def load_init(model: nn.Module, config: TrainConfig) -> dict[str, float]:
     """Start ``model`` from the weights of ``config.init``; returns the training behind them."""
     payload = read_checkpoint(config.init)
     state = payload["state_dict"]
-    if (payload["model"], config.model) == ("snn6", "snn6-grid"):
-        state = grid_state_from_global(state, model.readout_grid)
+    if isinstance(model, SNN6) and payload["model"] in ("snn6", "snn6-grid"):
+        # another variant (grid readout, log-polar input, time constants): carry the weights over
+        state = adapt_state(state, model)
     elif payload["model"] != config.model:
         raise InputError(
             f"--init {config.init}: a '{payload['model']}' checkpoint cannot start a "
