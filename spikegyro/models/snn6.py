@@ -75,6 +75,7 @@ def scaled_taus(params: SRMParams, factor: float) -> SRMParams:
         return params
     return replace(params, tau_s=params.tau_s * factor, tau_r=params.tau_r * factor)
 
+
 INIT_GAIN = 1.5
 """Weight init: uniform in ±INIT_GAIN/√fan_in per layer (1.0 is PyTorch's and the official
 default). At 1.0, uniform random input spikes at 1 % density leave layer 5 silent, and a silent
@@ -222,9 +223,7 @@ class SNN6(nn.Module):
         key = (height, width)
         if key not in self._pixel_maps:
             centre = self.log_polar_centre or (width / 2, height / 2)
-            self._pixel_maps[key] = log_polar_pixel_map(
-                height, width, centre, self.log_polar_r_min
-            )
+            self._pixel_maps[key] = log_polar_pixel_map(height, width, centre, self.log_polar_r_min)
         time_major = spikes.permute(4, 0, 1, 2, 3)  # (T, N, C, H, W), a view of the storage
         mapped = log_polar_spikes(time_major, self._pixel_maps[key], spatial_dim=3)
         return torch.cat([time_major, mapped], dim=2).permute(1, 2, 3, 4, 0)
