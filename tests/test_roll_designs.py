@@ -172,3 +172,29 @@ def test_event_engine_takes_the_variants(kwargs: dict) -> None:
         reference = model(x)
         model.use_event_engine(2)
         assert torch.equal(model(x), reference)
+
+
+def test_stream_engine_hands_the_variants_to_the_batched_path(tmp_path, capsys) -> None:
+    from spikegyro.stream.model import BatchedOnly, load_engine, load_streaming_model
+    from spikegyro.stream.stateful import StreamingSNN
+
+    spec = {"representation": "spikes", "sensor": [240, 180], "scale": 0.5, "window_ms": 100}
+    for name, kwargs in (("snn6", {"log_polar": True}), ("snn6-grid", {"grid": [2, 2]})):
+        path = save_checkpoint(
+            tmp_path / f"{name}.pt", build_model(name, **kwargs), name=name,
+            model_kwargs=kwargs, input_spec=spec,
+        )  # fmt: skip
+        with pytest.raises(BatchedOnly):
+            load_streaming_model(path)
+        engine, meta = load_engine(path)
+        assert callable(engine) and not isinstance(engine, StreamingSNN)
+        assert meta["model_kwargs"] == kwargs
+        assert "batched path" in capsys.readouterr().err
+    plain = save_checkpoint(
+        tmp_path / "plain.pt",
+        build_model("snn6", tau_scale=2.0),
+        name="snn6",
+        model_kwargs={"tau_scale": 2.0},
+        input_spec=spec,
+    )
+    assert isinstance(load_engine(plain)[0], StreamingSNN)  # longer taus stream exactly

@@ -65,8 +65,9 @@ from spikegyro.events.imu import (
 )
 from spikegyro.events.io import atomic_dir, read_gyro, read_recording
 from spikegyro.events.windows import BIN_US, bin_means, event_windows, time_windows
-from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_streaming_model
+from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_engine
 from spikegyro.stream.predict import WARMUP_STEPS, StreamPredictor, event_mapper, model_camera
+from spikegyro.stream.stateful import StreamingSNN
 
 REAL_METRICS_FORMAT = "spikegyro-real-metrics/1"
 DEFAULT_WINDOW_MS = 20.0
@@ -130,11 +131,15 @@ def _snn_per_ms(
     source: str,
     progress: Any,
 ) -> tuple[np.ndarray, dict[str, Any]]:
-    engine, payload = load_streaming_model(checkpoint)
+    # the exact stream; networks it cannot run (grid readout, log-polar input) go batched
+    engine, payload = load_engine(checkpoint)
     spec = payload.get("input", {})
     mapper = event_mapper(events.sensor_size, spec, calibration, source)
-    predictor = StreamPredictor(engine, model_camera(spec).width, t0)
-    engine.reset()
+    if isinstance(engine, StreamingSNN):
+        engine.reset()
+        predictor = StreamPredictor(engine, model_camera(spec).width, t0)
+    else:
+        predictor = engine(model_camera(spec), t0)
     outputs = []
     for k in range(0, steps, SNN_CHUNK_MS):
         chunk = events.slice_time(t0 + k * BIN_US, t0 + (k + SNN_CHUNK_MS) * BIN_US)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import sys
 import zipfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -31,6 +32,12 @@ DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "pretrained"
 because importing :mod:`spikegyro.models` imports torch)."""
 
 SPEC_CACHE_VERSION = 1
+
+
+class BatchedOnly(InputError):
+    """A network the exact stream engine cannot run, but the batched torch path can."""
+
+
 _META_KEYS = ("format", "model", "model_kwargs", "input")
 
 
@@ -49,14 +56,17 @@ def spec_from_model(
         input_shape: (2, height, width) of the input spike tensor.
         dtype: dtype of weights and kernels in the spec (float64 for bit-level comparisons).
     """
-    from spikegyro.snn.layers import GASP, SRMConv, SRMDense
+    from spikegyro.snn.layers import GASP, RegionPool, SRMConv, SRMDense
 
     children = list(model.modules())
     convs = [m for m in children if isinstance(m, SRMConv)]
     dense = [m for m in children if isinstance(m, SRMDense)]
-    if not convs or len(dense) != 1 or not any(isinstance(m, GASP) for m in children):
+    pooled = any(isinstance(m, (GASP, RegionPool)) for m in children)
+    if convs and getattr(model, "log_polar", False):  # conv1 also takes the log-polar copy
+        input_shape = (int(convs[0].weight.shape[1]), *input_shape[1:])
+    if not convs or len(dense) != 1 or not pooled:
         raise InputError(
-            f"model {type(model).__name__}: streaming needs spiking conv layers, global average "
+            f"model {type(model).__name__}: streaming needs spiking conv layers, average "
             "spike pooling and one dense readout (an SNN such as snn6), not this architecture."
         )
     if any(c.padding for c in convs) or dense[0].params.spiking:
@@ -197,6 +207,11 @@ def load_streaming_model(
 ) -> tuple[StreamingSNN, dict[str, Any]]:
     """Build the streaming engine of a checkpoint; returns (engine, metadata without weights)."""
     spec, meta = load_streaming_spec(path)
+    if spec.input_shape[0] != 2 or spec.fc_weight.shape[1] != spec.layers[-1].weight.shape[0]:
+        raise BatchedOnly(
+            f"{path}: the exact stream engine runs Cartesian spike input and global average "
+            "spike pooling only, not log-polar channels or a grid readout"
+        )
     return StreamingSNN(spec, threads=threads), meta
 
 
@@ -213,7 +228,11 @@ def load_engine(
     approximate path, segments of ``segment_ms`` after ``context_ms`` of warm-up, ``batch``
     segments a pass (None: from memory)."""
     if device == "stream":
-        return load_streaming_model(path, threads=threads)
+        try:
+            return load_streaming_model(path, threads=threads)
+        except BatchedOnly as exc:
+            print(f"{exc}: running it on the batched path (--device cpu).", file=sys.stderr)
+            device = "cpu"
     # torch is imported only here: the exact stream needs none once the spec is cached
     from spikegyro.stream.batched import SegmentConfig, batched_predictor
 
