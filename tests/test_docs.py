@@ -130,3 +130,71 @@ def test_scheduler_without_dask_names_the_extra(
     with pytest.raises(InputError, match=r"pip install 'spikegyro\[distributed\]'"):
         generate_dataset(tmp_path / "data", 3, scheduler="tcp://127.0.0.1:8786")
     assert not (tmp_path / "data").exists()  # refused before anything is written
+
+
+TOP_LEVEL_DOCS = (ROOT / "README.md", ROOT / "BENCHMARKS.md")
+# Tracker references: "issue 20", "issues 19, 20", "#31" (a heading's "#" is followed by a space).
+ISSUE_REFERENCE = re.compile(r"\bissues? \d+|(?<![\w&])#\d+\b", re.IGNORECASE)
+
+
+def _readme_command_lines() -> list[str]:
+    """Every ``spikegyro ...`` invocation in README.md's code blocks, continuation lines joined."""
+    blocks, block, language = [], None, ""
+    for line in (ROOT / "README.md").read_text().splitlines():
+        if line.startswith("```"):
+            if block is None:
+                block, language = [], line[3:].strip()
+            else:
+                if language in ("", "bash", "sh", "console"):
+                    blocks.append("\n".join(block))
+                block = None
+        elif block is not None:
+            block.append(line)
+    lines = []
+    for text in blocks:
+        for line in text.replace("\\\n", " ").splitlines():
+            line = line.split("#", 1)[0].strip()  # drop shell comments
+            if line.startswith("spikegyro "):
+                lines.append(line)
+    return lines
+
+
+def test_readme_and_benchmarks_name_no_tracker_issues_or_retired_notes() -> None:
+    for path in TOP_LEVEL_DOCS:
+        text = path.read_text()
+        found = [
+            f"{path.name}:{n}: {m.group(0)}"
+            for n, line in enumerate(text.splitlines(), 1)
+            for m in ISSUE_REFERENCE.finditer(line)
+        ]
+        assert not found, f"issue numbers in a user document: {found}"
+        assert "DESIGN" + ".md" not in text, path.name
+
+
+def test_issue_reference_pattern() -> None:
+    assert ISSUE_REFERENCE.search("as issue 20 asks") and ISSUE_REFERENCE.search("(issues 19, 20)")
+    assert ISSUE_REFERENCE.search("fixed in #31")
+    assert not ISSUE_REFERENCE.search("## Heading")
+    assert not ISSUE_REFERENCE.search("snnTorch issues ~30 small ops")
+
+
+def test_every_command_in_the_readme_exists_with_the_options_it_names() -> None:
+    import typer
+
+    from spikegyro.cli import _COMMANDS, app
+
+    lines = _readme_command_lines()
+    assert len(lines) >= 10, lines
+    group = typer.main.get_command(app)
+    ctx = group.make_context("spikegyro", ["--help"], resilient_parsing=True)
+    for line in lines:
+        words = line.split()[1:]
+        while words and words[0].startswith("--"):  # global options such as --debug
+            words.pop(0)
+        assert words and words[0] in _COMMANDS, f"README: not a spikegyro command: {line}"
+        command = group.get_command(ctx, words[0])
+        if hasattr(command, "commands"):  # a sub-app: `spikegyro baseline cmax`
+            command = command.commands[words[1]]
+        options = {opt for p in command.params for opt in (*p.opts, *p.secondary_opts)}
+        named = {w.split("=", 1)[0] for w in words if w.startswith("-") and not w[1:2].isdigit()}
+        assert named <= options, f"README: {line}: unknown options {sorted(named - options)}"
