@@ -134,13 +134,14 @@ def predict(
         engine, payload = load_engine(checkpoint, device, threads, segment_ms, context_ms, batch)
         input_spec = payload.get("input", {})
         estimator = SNNEstimator(engine, input_spec, inputs.calibration, rate_hz, str(events))
-        if not is_simulated(events):
-            console.print(SNN_REAL_DATA_NOTE)
     result = stream_with_progress(
         console, "predict", events, estimator, out, sensor=inputs.sensor, start_s=start,
         end_s=end, gyro_path=gyro, gyro_rotation=inputs.gyro_rotation,
     )  # fmt: skip
-    print_lines(console, summary_lines(result, out, warm_up=method == "snn"))
+    snn = method == "snn"
+    print_lines(console, summary_lines(result, out, warm_up=snn))
+    if snn and not is_simulated(events):  # after the run: an unreadable file is one error line
+        console.print(SNN_REAL_DATA_NOTE)
 
 
 def _check_method(method: str, window_ms: float | None) -> None:
