@@ -150,6 +150,10 @@ CASES: dict[str, str] = {
     "cmax-out-is-folder": "baseline cmax {good.h5} --out {existing_dir}",
     "cmax-end-before-start": "baseline cmax {good.h5} --start 0.2 --end 0.1 --out {out}/c.csv",
     "cmax-parent-is-file": "baseline cmax {good.h5} --out {existing.csv}/c.csv",
+    # calibrate-imu
+    "calibrate-imu-not-hdf5": "calibrate-imu {garbage.h5}",
+    "calibrate-imu-bad-gyro": "calibrate-imu {good.h5} --gyro {bad_gyro.txt}",
+    "calibrate-imu-end-before-start": "calibrate-imu {good.h5} --start 0.2 --end 0.1",
     # demo
     "demo-out-is-file": "demo --out {existing.csv}",
     "demo-zero-sequences": "demo --out {out}/demo --test-sequences 0",
