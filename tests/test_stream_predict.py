@@ -108,16 +108,19 @@ def test_stream_scores_are_the_evaluation_metrics(tmp_path, engine, recording):
     pred = read_predictions(out)
     scored = pred["t_us"] > T0_US + WARMUP_STEPS * 1000
     s = metrics.summary(pred["omega"][None, scored], pred["gyro_omega"][None, scored], start=0)
-    got = result.stats
-    assert got["samples"] == s["n_pairs"] == scored.sum()
-    # the file holds float32: the scores agree to its rounding
-    assert got["mean_error_deg_s"] == pytest.approx(s["mean_euclidean_error_deg_s"], rel=1e-5)
-    assert got["rmse_deg_s"] == pytest.approx(s["rmse_deg_s"], rel=1e-5)
-    for key, axis in zip("xyz", metrics.AXES, strict=True):
-        per_axis = s["per_axis"][axis]
-        assert got[f"rmse_{key}_deg_s"] == pytest.approx(per_axis["rmse_deg_s"], rel=1e-5)
-        assert got[f"mae_{key}_deg_s"] == pytest.approx(per_axis["mean_abs_error_deg_s"], rel=1e-5)
-    assert got["median_relative_error"] == pytest.approx(s["median_relative_error"], rel=2.5e-3)
+    axes = {key: s["per_axis"][axis] for key, axis in zip("xyz", metrics.AXES, strict=True)}
+    expected = {
+        "mean_error_deg_s": s["mean_euclidean_error_deg_s"],
+        "rmse_deg_s": s["rmse_deg_s"],
+        **{f"rmse_{key}_deg_s": axis["rmse_deg_s"] for key, axis in axes.items()},
+        **{f"mae_{key}_deg_s": axis["mean_abs_error_deg_s"] for key, axis in axes.items()},
+    }
+    got = dict(result.stats)
+    assert got.pop("samples") == s["n_pairs"] == scored.sum()
+    # the histogram's bins are 10^0.001 apart: its median is within 0.25 % of the exact one
+    median = got.pop("median_relative_error")
+    assert median == pytest.approx(s["median_relative_error"], rel=2.5e-3)
+    assert got == pytest.approx(expected, rel=1e-5)  # the file holds float32
 
 
 def test_error_stats_against_numpy():
