@@ -257,6 +257,11 @@ def export_nir(checkpoint: str | os.PathLike, out: str | os.PathLike) -> Path:
         raise InputError(
             f"{checkpoint}: a '{payload['model']}' checkpoint; only SNN-6 maps onto NIR neurons."
         )
+    if payload["model_kwargs"].get("log_polar"):
+        raise InputError(
+            f"{checkpoint}: an SNN-6 with log-polar input channels; NIR has no node for the "
+            "log-polar re-mapping, so only the plain network exports."
+        )
     model = SNN6(**payload["model_kwargs"])
     model.load_state_dict(payload["state_dict"])
     spec = payload["input"]
