@@ -4,13 +4,17 @@ A window is a half-open span ``[start, end)`` of microseconds. Windows are tiled
 (:func:`time_windows`: whole windows of a fixed length, a partial one at the end left out) or by
 event count (:func:`event_windows`); :func:`bin_means` averages a per-millisecond series (a
 model's omega per 1 ms step) over any windows, so a model that answers every millisecond can be
-compared with one that answers once per window.
+compared with one that answers once per window; :func:`series_per_window` gathers a
+method's per-ms series over a list of windows.
 
 The module depends on NumPy alone, so evaluation, the baselines and the event tools can share
 it.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -59,3 +63,28 @@ def bin_means(
 
     span = (np.asarray(ends_us, dtype=np.float64) - starts_us)[:, None] / BIN_US
     return (integral(ends_us) - integral(starts_us)) / np.maximum(span, 1e-12)
+
+
+W = TypeVar("W")
+
+
+def series_per_window(
+    predict: Callable[[Sequence[W]], np.ndarray],
+    windows: Sequence[W],
+    num_steps: int,
+    batch_size: int = 1,
+    progress: Callable[[int], Any] | None = None,
+    dtype: type = np.float64,
+) -> np.ndarray:
+    """Per-ms series (n, num_steps, 3) of ``windows``, in the units ``predict`` gives.
+
+    ``predict`` maps a batch of at most ``batch_size`` consecutive windows to their
+    (batch, num_steps, 3) series; ``progress(done)`` is called with the windows done after each.
+    """
+    out = np.zeros((len(windows), num_steps, 3), dtype=dtype)
+    for i in range(0, len(windows), batch_size):
+        batch = windows[i : i + batch_size]
+        out[i : i + len(batch)] = predict(batch)
+        if progress is not None:
+            progress(i + len(batch))
+    return out
