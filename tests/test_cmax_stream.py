@@ -206,3 +206,13 @@ def test_calibrate_imu_recovers_a_rotated_biased_gyro(simulated_roll, tmp_path) 
     # Roll (and a little pan) only: the fit warns that the rotation is not determined about
     # all axes, but the excited roll axis maps back to the camera's z.
     assert "--imu-to-camera" in done.output and "warning" in done.output
+
+
+def test_too_few_events_for_any_estimate_warn_and_leave_a_header(tmp_path) -> None:
+    path = tmp_path / "two.txt"
+    path.write_text("0.1 1 2 1\n0.2 3 4 0\n")
+    out = tmp_path / "p.csv"
+    res = CliRunner().invoke(app, ["predict", str(path), "--method", "cmax", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "warning: no estimate: 2 events" in res.output
+    assert len(read_predictions(out)["t_us"]) == 0

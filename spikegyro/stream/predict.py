@@ -647,7 +647,12 @@ def summary_lines(result: StreamResult, out: str | os.PathLike, warm_up: bool = 
         "CPU-second)",
         f"engine: {result.engine}",
     ]
-    if warm_up and result.steps <= WARMUP_STEPS:
+    if result.estimates == 0:
+        lines.append(
+            f"warning: no estimate: {result.events:,} events in {seconds:.3f} s are too few for "
+            "one (a window needs a few thousand events); the output holds only its header."
+        )
+    elif warm_up and result.steps <= WARMUP_STEPS:
         lines.append(
             f"warning: {result.steps} ms of output is within the network's {WARMUP_STEPS} ms "
             "warm-up, where it reads about zero; predict over a longer span to get estimates."
