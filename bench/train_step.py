@@ -10,7 +10,10 @@ resident set, VmHWM reset just before the step; growth = peak minus the level be
 
 Gradients: on the same batch, the largest relative norm ‖g_sparse − g_dense‖/‖g_dense‖ over the
 parameter tensors (float32), and the spikes that differ between the two forward passes (a
-potential within float32 rounding of θ). Profile: where the engine's time goes per layer.
+potential within float32 rounding of θ). Profile: where the engine's time goes per layer (CPU
+seconds of the threads that ran it, so that waiting for a busy core does not count). The load
+average of the host before and after is printed and written: on a shared machine only the
+interleaved ratio means anything.
 
     .venv/bin/python bench/train_step.py [--repeats 3] [--threads 1 2] [--json FILE]
 """
@@ -19,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -149,6 +153,7 @@ def main() -> None:
         print(json.dumps(peak_memory(compute, int(threads))))
         return
 
+    load_before = os.getloadavg()[0]
     x, y = windows()
     density = float(x.mean())
     rows = []
@@ -186,6 +191,9 @@ def main() -> None:
     for i, (f, b) in enumerate(zip(t.layer_forward_s, t.layer_backward_s, strict=True)):
         print(f"| {i + 1} | {f:.2f} | {b:.2f} | {inputs[i]} | {t.active[i]} |")
     print(f"wall: forward {t.forward_s:.2f} s, backward {t.backward_s:.2f} s (2 threads)")
+    load = [load_before, os.getloadavg()[0]]
+    print(f"host load average (1 min) before / after: {load[0]:.1f} / {load[1]:.1f}, "
+          f"{os.cpu_count()} cores")  # fmt: skip
     if args.json:
         two = {r["compute"]: r for r in rows if r["threads"] == max(args.threads)}
         result = {
@@ -197,6 +205,10 @@ def main() -> None:
             "grad_rel_diff": rel,
             "flipped_spikes": check["flipped_spikes"],
             "peak_mib": {f"{r['compute']}_{r['threads']}": r["peak_mib"] for r in rows},
+            "profile_cpu_s": {"forward": t.layer_forward_s, "backward": t.layer_backward_s},
+            "active_pairs": t.active,
+            "load_average": load,
+            "cores": os.cpu_count(),
             "date": time.strftime("%Y-%m-%d"),
         }
         with open(args.json, "w") as f:

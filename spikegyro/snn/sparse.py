@@ -161,12 +161,13 @@ def pooling_matrix(pool: nn.Module, height: int, width: int, dtype: torch.dtype)
 
 @dataclass
 class SparseTiming:
-    """Seconds spent in the parts of the last step of an :class:`EventDrivenStack` (wall time of
-    the parallel sections) and what they processed (summed over the batch)."""
+    """Seconds spent in the parts of the last step of an :class:`EventDrivenStack` and what they
+    processed (summed over the batch): wall time of the parallel sections, and per layer the CPU
+    time of the threads that ran it (a thread waiting for a busy core is not counted)."""
 
     forward_s: float = 0.0
     backward_s: float = 0.0
-    layer_forward_s: list[float] = field(default_factory=list)  # CPU s per layer, all threads
+    layer_forward_s: list[float] = field(default_factory=list)  # thread CPU s per layer, summed
     layer_backward_s: list[float] = field(default_factory=list)
     inputs: int = 0
     spikes: list[int] = field(default_factory=list)
