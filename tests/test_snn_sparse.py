@@ -204,10 +204,13 @@ def test_shipped_snn6_in_float32_at_240x180_against_a_float64_reference():
     in two parts that a wrong engine fails:
 
     - forward: the engine's spike trains in layers 1-4 equal the reference's but for at most
-      1e-5 of the spikes in layers 1-2 (rounding flips: ~1e-6) and 1e-3 in layers 3-4 (their
-      cascades); a wrong PSP, threshold or refractory term flips far more;
-    - gradients: the loss to 1e-3 and every parameter's gradient to 1e-2 relative norm (measured
-      2e-3-5e-3: the flips' effect, as large as in the batch path's float32 gradients).
+      1e-5 of the spikes in layers 1-2 (rounding flips) and 2e-3 in layers 3-4 (their
+      cascades); a wrong PSP, threshold or refractory term flips far more. Measured: 0, 0, 41
+      and 43 flips of 1.09 M, 1.24 M, 0.89 M and 74 k spikes (layer 5 is pooled inside the
+      engine and not compared);
+    - gradients: the loss to 1e-3 (measured 1.1e-4) and every parameter's gradient to 1e-2
+      relative norm (measured 1.6e-3-4.9e-3, against 2e-4-8e-4 for the batch path in float32:
+      the engine's float32 sums run in other orders, through the PSP recursion).
 
     The float64 test above is the exactness check (1e-9)."""
     model, _ = load_checkpoint(PRETRAINED_SNN6)
@@ -224,7 +227,7 @@ def test_shipped_snn6_in_float32_at_240x180_against_a_float64_reference():
     with torch.no_grad():
         _, spikes = reference.forward_with_spikes(x.double())
     for i, (ours, theirs) in enumerate(zip(engine, _dense_spikes(spikes), strict=True)):
-        limit = 1e-5 if i < 2 else 1e-3
+        limit = 1e-5 if i < 2 else 2e-3
         assert len(ours ^ theirs) <= limit * len(theirs), (i, len(ours ^ theirs), len(theirs))
     assert loss_s == pytest.approx(loss_r, rel=1e-3)
     for name, grad in dense.items():
