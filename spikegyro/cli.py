@@ -33,7 +33,7 @@ _COMMANDS: dict[str, str] = {
     "report": "spikegyro.evaluate.commands:report",
     "export-nir": "spikegyro.models.commands:export_nir_command",
     "train": "spikegyro.train.commands:train_command",
-    "relay-log": "spikegyro.train.relay:relay_log_command",
+    "relay-log": "spikegyro.train.commands:relay_log_command",
     "predict": "spikegyro.stream.commands:predict",
     "baseline": "spikegyro.baselines.commands:app",
     "calibrate-imu": "spikegyro.baselines.commands:calibrate_imu",

@@ -1,11 +1,21 @@
-"""``spikegyro train``: train SNN-6 or an ANN baseline from a preset plus command-line overrides.
+"""``spikegyro train``: train SNN-6 or an ANN baseline from a preset plus command-line overrides,
+and ``spikegyro relay-log``: fold a segment of a run trained in segments into its joined log.
 
-Runs as one process, or as several under ``torchrun --nproc-per-node K -m spikegyro train ...``.
+``train`` runs as one process, or as several under ``torchrun --nproc-per-node K -m spikegyro
+train ...``. Its override options are generated from :class:`TrainConfig`'s fields (see
+:data:`OPTION_HELP`), so an option and the field it sets cannot drift apart.
 """
 
 from __future__ import annotations
 
+import functools
+import inspect
 import json
+import shutil
+import types
+import typing
+from collections.abc import Callable
+from dataclasses import fields
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -16,7 +26,8 @@ from rich.console import Console
 from spikegyro.errors import InputError
 from spikegyro.train import distributed
 from spikegyro.train.loop import TrainResult, resume_config, train
-from spikegyro.train.presets import PRESETS, resolve_config
+from spikegyro.train.presets import PRESETS, TrainConfig, resolve_config
+from spikegyro.train.relay import STATE_FILES, append_segment, plot_relay
 
 
 def _json_option(text: str | None, name: str) -> dict[str, Any] | None:
@@ -46,145 +57,176 @@ def throughput_line(result: TrainResult) -> str:
     return line
 
 
-def train_command(
-    data: Path = typer.Option(None, "--data", help="Dataset folder with train/ and val/ splits."),
-    out: Path = typer.Option(None, "--out", help="Run directory (default: runs/train-MODEL-TIME)."),
-    preset: str = typer.Option("paper", help=f"Starting values: {', '.join(PRESETS)}."),
-    resume: bool = typer.Option(
-        False, "--resume", help="Continue the run in --out from last.pt (options given override)."
+OPTION_HELP: dict[str, str] = {
+    "data": "Dataset folder with train/ and val/ splits.",
+    "online": "Simulate fresh training sequences on the fly.",
+    "model": "snn6, snn6-grid, ann6 or resnet50.",
+    "input": "spikes (SNN), voxel or frames (ANNs).",
+    "model_kwargs": "Model constructor arguments as JSON.",
+    "init": "Start from this checkpoint's weights.",
+    "freeze": "SNN: keep the first N spiking layers' weights fixed (fine-tune the rest).",
+    "scale": "Factor on event coordinates (0.5: 240x180->120x90).",
+    "window_ms": "Window length, ms.",
+    "num_bins": "Voxel-grid bins (ANNs).",
+    "target_ms": "ANN prediction window, ms.",
+    "loss_start_step": "First step (ms) counted by the loss.",
+    "train_window_ms": "Training window length, ms (0 = --window-ms).",
+    "train_loss_start_step": "First step of training windows counted by the loss.",
+    "batch_size": "Windows per step, over all processes.",
+    "lr": "Adam learning rate.",
+    "lr_schedule": "constant or cosine.",
+    "lr_min_factor": "Final lr of the cosine schedule, x lr.",
+    "warmup_steps": "Linear learning-rate warm-up steps.",
+    "grad_clip": "Max gradient norm (0 = off).",
+    "iterations": "Optimizer steps.",
+    "max_minutes": "Stop gracefully once the run has trained this long, resumed minutes included.",
+    "hflip": "Probability of a horizontal flip.",
+    "vflip": "Probability of a vertical flip.",
+    "time_reverse": "Probability of time inversion.",
+    "event_keep_min": "Event drop: each window keeps U(this, 1) of its events (1 = off).",
+    "noise_events_hz": (
+        "Added background events per pixel per s, U(0, this) per window (0 = off)."
     ),
-    online: bool = typer.Option(
-        None, "--online/--no-online", help="Simulate fresh training sequences on the fly."
-    ),
-    model: str = typer.Option(None, help="snn6, snn6-grid, ann6 or resnet50."),
-    input: str = typer.Option(None, "--input", help="spikes (SNN), voxel or frames (ANNs)."),
-    model_kwargs: str = typer.Option(None, help="Model constructor arguments as JSON."),
-    init: Path = typer.Option(None, "--init", help="Start from this checkpoint's weights."),
-    sensor_width: int = typer.Option(None, help="Width of the dataset's sensor, px."),
-    sensor_height: int = typer.Option(None, help="Height of the dataset's sensor, px."),
-    scale: float = typer.Option(None, help="Factor on event coordinates (0.5: 240x180->120x90)."),
-    window_ms: int = typer.Option(None, help="Window length, ms."),
-    num_bins: int = typer.Option(None, help="Voxel-grid bins (ANNs)."),
-    target_ms: int = typer.Option(None, help="ANN prediction window, ms."),
-    loss_start_step: int = typer.Option(None, help="First step (ms) counted by the loss."),
-    train_window_ms: int = typer.Option(None, help="Training window length, ms (0 = --window-ms)."),
-    train_loss_start_step: int = typer.Option(
-        None, help="First step of training windows counted by the loss."
-    ),
-    batch_size: int = typer.Option(None, help="Windows per step, over all processes."),
-    lr: float = typer.Option(None, help="Adam learning rate."),
-    lr_schedule: str = typer.Option(None, help="constant or cosine."),
-    lr_min_factor: float = typer.Option(None, help="Final lr of the cosine schedule, x lr."),
-    warmup_steps: int = typer.Option(None, help="Linear learning-rate warm-up steps."),
-    grad_clip: float = typer.Option(None, help="Max gradient norm (0 = off)."),
-    iterations: int = typer.Option(None, help="Optimizer steps."),
-    max_minutes: float = typer.Option(
-        None, help="Stop gracefully once the run has trained this long, resumed minutes included."
-    ),
-    hflip: float = typer.Option(None, help="Probability of a horizontal flip."),
-    vflip: float = typer.Option(None, help="Probability of a vertical flip."),
-    time_reverse: float = typer.Option(None, help="Probability of time inversion."),
-    event_keep_min: float = typer.Option(
-        None, help="Event drop: each window keeps U(this, 1) of its events (1 = off)."
-    ),
-    noise_events_hz: float = typer.Option(
-        None, help="Added background events per pixel per s, U(0, this) per window (0 = off)."
-    ),
-    centre_crop: float = typer.Option(
-        None, help="Probability that a window keeps only a centred box of its events (0 = off)."
-    ),
-    freeze: int = typer.Option(
-        None, help="SNN: keep the first N spiking layers' weights fixed (fine-tune the rest)."
-    ),
-    seed: int = typer.Option(None, help="Random seed (model init and samples)."),
-    val_every: int = typer.Option(None, help="Validate and checkpoint every N steps."),
-    val_windows: int = typer.Option(None, help="Validate on at most N windows (0 = all)."),
-    val_sequences: int = typer.Option(None, help="Simulated validation sequences (online)."),
-    log_every: int = typer.Option(None, help="Steps per log row."),
-    num_workers: int = typer.Option(None, help="DataLoader workers per process."),
-    threads: int = typer.Option(None, help="Torch CPU threads (0 = default)."),
-    device: str = typer.Option(None, help="auto, cpu, cuda or cuda:K."),
-    data_path: str = typer.Option(
-        None, help="events (binned on the device), dense, or auto (events on CUDA)."
-    ),
-    amp: str = typer.Option(
-        None, help="off, or bf16: the ANNs' forward passes in bfloat16 autocast (GPU speed)."
-    ),
-    compute: str = typer.Option(
-        None, help="SNNs: sparse (event-driven CPU engine), dense (torch), or auto (sparse on a "
-        "CPU in one process)."
-    ),
-    surrogate_cut: float = typer.Option(
-        None, help="SNNs: zero the surrogate gradient below this share of its peak (0 = "
-        "unbounded; default 0.05 sparse, 0 dense)."
-    ),
-    bare_steps: int = typer.Option(
-        None, help="Bare training steps timed at the end, to compare with the run (0 = off)."
-    ),
-    sim: str = typer.Option(None, help="Simulator settings for --online, as JSON."),
-    tensorboard: bool = typer.Option(None, "--tensorboard/--no-tensorboard", help="TB logs."),
-) -> None:
-    """Train a model; writes config.json, log.csv, last.pt, best.pt and loss.png to --out."""
-    overrides: dict[str, Any] = {
-        "data": None if data is None else str(data),
-        "online": online,
-        "model": model,
-        "input": input,
-        "model_kwargs": _json_option(model_kwargs, "model-kwargs"),
-        "init": None if init is None else str(init),
-        "freeze": freeze,
-        "scale": scale,
-        "window_ms": window_ms,
-        "num_bins": num_bins,
-        "target_ms": target_ms,
-        "loss_start_step": loss_start_step,
-        "train_window_ms": train_window_ms,
-        "train_loss_start_step": train_loss_start_step,
-        "batch_size": batch_size,
-        "lr": lr,
-        "lr_schedule": lr_schedule,
-        "lr_min_factor": lr_min_factor,
-        "warmup_steps": warmup_steps,
-        "grad_clip": grad_clip,
-        "iterations": iterations,
-        "max_minutes": max_minutes,
-        "hflip": hflip,
-        "vflip": vflip,
-        "time_reverse": time_reverse,
-        "event_keep_min": event_keep_min,
-        "noise_events_hz": noise_events_hz,
-        "centre_crop": centre_crop,
-        "seed": seed,
-        "val_every": val_every,
-        "val_windows": val_windows,
-        "val_sequences": val_sequences,
-        "log_every": log_every,
-        "num_workers": num_workers,
-        "threads": threads,
-        "device": device,
-        "data_path": data_path,
-        "amp": amp,
-        "compute": compute,
-        "surrogate_cut": surrogate_cut,
-        "bare_steps": bare_steps,
-        "sim": _json_option(sim, "sim"),
-        "tensorboard": tensorboard,
-    }
+    "centre_crop": "Probability that a window keeps only a centred box of its events (0 = off).",
+    "seed": "Random seed (model init and samples).",
+    "val_every": "Validate and checkpoint every N steps.",
+    "val_windows": "Validate on at most N windows (0 = all).",
+    "val_sequences": "Simulated validation sequences (online).",
+    "log_every": "Steps per log row.",
+    "num_workers": "DataLoader workers per process.",
+    "threads": "Torch CPU threads (0 = default).",
+    "device": "auto, cpu, cuda or cuda:K.",
+    "data_path": "events (binned on the device), dense, or auto (events on CUDA).",
+    "amp": "off, or bf16: the ANNs' forward passes in bfloat16 autocast (GPU speed).",
+    "compute": "SNNs: sparse (event-driven CPU engine), dense (torch), or auto (sparse on a CPU "
+    "in one process).",
+    "surrogate_cut": "SNNs: zero the surrogate gradient below this share of its peak (0 = "
+    "unbounded; default 0.05 sparse, 0 dense).",
+    "bare_steps": "Bare training steps timed at the end, to compare with the run (0 = off).",
+    "sim": "Simulator settings for --online, as JSON.",
+    "tensorboard": "TB logs.",
+}
+"""TrainConfig field -> help of its option ``--FIELD-NAME``, which overrides the preset's (or the
+resumed run's) value when given. The option's type is the field's: a bool is a ``--x/--no-x``
+flag, a dict is JSON text, and the fields in :data:`PATH_FIELDS` are paths."""
+
+COMMAND_FIELDS: dict[str, tuple[str, ...]] = {
+    # The TrainConfig fields that train_command sets from its own parameters instead:
+    "preset": ("preset",),  # names the starting values, which the overrides go on top of
+    "out": ("out", "resume"),  # has a default of its own, and names the run --resume continues
+    "sensor": ("sensor_width", "sensor_height"),  # a (width, height) pair: two options
+}
+"""TrainConfig field -> the parameters of :func:`train_command` that give it."""
+
+PATH_FIELDS = ("data", "init")
+"""The str fields that name files or folders: their options take paths."""
+
+
+@functools.cache
+def _field_kind(name: str) -> type:
+    """The type of TrainConfig's field ``name``, without its ``| None`` and type arguments."""
+    hint = typing.get_type_hints(TrainConfig)[name]
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        hint = next(arg for arg in typing.get_args(hint) if arg is not type(None))
+    return typing.get_origin(hint) or hint
+
+
+def _config_option(name: str) -> inspect.Parameter:
+    """The keyword parameter of ``train_command`` for option ``--NAME`` (None: not given)."""
+    kind = _field_kind(name)
+    flag = name.replace("_", "-")
+    if kind is dict:
+        kind = str
+    elif name in PATH_FIELDS:
+        kind = Path
+    declaration = f"--{flag}/--no-{flag}" if kind is bool else f"--{flag}"
+    option = typer.Option(None, declaration, help=OPTION_HELP[name])
+    return inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=option, annotation=kind)
+
+
+def _with_config_options(command: Callable[..., None]) -> Callable[..., None]:
+    """Give ``command`` (whose ``**options`` take the overrides) an option for every field in
+    :data:`OPTION_HELP`, its own parameters standing in for :data:`COMMAND_FIELDS`, all in the
+    order of TrainConfig's fields; Typer reads the options from the signature."""
+    own = inspect.signature(command, eval_str=True).parameters
+    parameters = []
+    for name in (f.name for f in fields(TrainConfig)):
+        if name in OPTION_HELP:
+            parameters.append(_config_option(name))
+        for given in COMMAND_FIELDS.get(name, ()):
+            parameters.append(own[given].replace(kind=inspect.Parameter.KEYWORD_ONLY))
+    command.__signature__ = inspect.Signature(parameters)  # type: ignore[attr-defined]
+    command.__annotations__ = {p.name: p.annotation for p in parameters}
+    return command
+
+
+def _overrides(
+    options: dict[str, Any], sensor_width: int | None, sensor_height: int | None
+) -> dict[str, Any]:
+    """The TrainConfig values given on the command line (None where an option was not)."""
+    overrides: dict[str, Any] = {}
+    for name, value in options.items():
+        if value is not None and _field_kind(name) is dict:
+            value = _json_option(value, name.replace("_", "-"))
+        overrides[name] = str(value) if isinstance(value, Path) else value
     if (sensor_width is None) != (sensor_height is None):
         raise InputError("--sensor-width and --sensor-height go together.")
     if sensor_width is not None:
         overrides["sensor"] = (sensor_width, sensor_height)
+    return overrides
+
+
+def _run_config(
+    preset: str, out: Path | None, resume: bool, overrides: dict[str, Any]
+) -> TrainConfig:
+    """The configuration of the run: the stored one on resume, else the preset's."""
     if resume:
         if out is None:
             raise InputError("--resume needs --out, the run directory to continue.")
-        config = resume_config(out, overrides)
-    else:
-        if out is None:
-            stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
-            out = Path("runs") / f"train-{model or 'snn6'}-{stamp}"
-        if (out / "last.pt").exists():
-            raise InputError(f"{out}: already holds a run; pass --resume or another --out.")
-        config = resolve_config(preset, {**overrides, "out": str(out)})
+        return resume_config(out, overrides)
+    if out is None:
+        stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
+        out = Path("runs") / f"train-{overrides.get('model') or 'snn6'}-{stamp}"
+    if (out / "last.pt").exists():
+        raise InputError(f"{out}: already holds a run; pass --resume or another --out.")
+    return resolve_config(preset, {**overrides, "out": str(out)})
+
+
+def _report(config: TrainConfig, result: TrainResult) -> None:
+    """What the run did, where it is, and how to continue it when it was interrupted."""
+    console = Console()
+    state = "done"
+    if result.stopped_early:
+        state = "interrupted" if result.interrupted else "stopped at the time budget"
+    console.print(
+        f"[bold]train[/] {config.model} {state}: {result.steps} steps in "
+        f"{result.elapsed_s / 60:.1f} min, last loss {result.last_loss:.3f} rad/s"
+    )
+    if result.val:
+        console.print(
+            f"validation: median relative error {result.val['val_median_rel']:.3f}, mean "
+            f"error {result.val['val_mean_err_deg']:.1f} deg/s (best median "
+            f"{result.best_val_median_rel:.3f})"
+        )
+    console.print(throughput_line(result))
+    console.print(f"run directory: {result.run_dir}")
+    if result.interrupted:
+        console.print(f"continue with: spikegyro train --out {result.run_dir} --resume")
+
+
+@_with_config_options
+def train_command(
+    preset: str = typer.Option("paper", help=f"Starting values: {', '.join(PRESETS)}."),
+    out: Path = typer.Option(None, "--out", help="Run directory (default: runs/train-MODEL-TIME)."),
+    resume: bool = typer.Option(
+        False, "--resume", help="Continue the run in --out from last.pt (options given override)."
+    ),
+    sensor_width: int = typer.Option(None, help="Width of the dataset's sensor, px."),
+    sensor_height: int = typer.Option(None, help="Height of the dataset's sensor, px."),
+    **options: Any,
+) -> None:
+    """Train a model; writes config.json, log.csv, last.pt, best.pt and loss.png to --out."""
+    config = _run_config(preset, out, resume, _overrides(options, sensor_width, sensor_height))
     if config.amp != "off" and distributed.pick_device(config.device).type == "cpu":
         Console(stderr=True).print(
             f"warning: --amp {config.amp} on a CPU: most CPUs have no bfloat16 units, so this is "
@@ -192,23 +234,30 @@ def train_command(
         )
     result = train(config, resume=resume)
     if distributed.init_rank() == 0:
-        console = Console()
-        state = "done"
-        if result.stopped_early:
-            state = "interrupted" if result.interrupted else "stopped at the time budget"
-        console.print(
-            f"[bold]train[/] {config.model} {state}: {result.steps} steps in "
-            f"{result.elapsed_s / 60:.1f} min, last loss {result.last_loss:.3f} rad/s"
-        )
-        if result.val:
-            console.print(
-                f"validation: median relative error {result.val['val_median_rel']:.3f}, mean "
-                f"error {result.val['val_mean_err_deg']:.1f} deg/s (best median "
-                f"{result.best_val_median_rel:.3f})"
-            )
-        console.print(throughput_line(result))
-        console.print(f"run directory: {result.run_dir}")
-        if result.interrupted:
-            console.print(f"continue with: spikegyro train --out {result.run_dir} --resume")
+        _report(config, result)
     if result.interrupted:
         raise typer.Exit(130)
+
+
+def relay_log_command(
+    run_dir: Path = typer.Argument(..., help="The `spikegyro train` run of the new segment."),
+    relay: Path = typer.Option(
+        None,
+        "--relay",
+        help="Folder of the joined log (default: the run directory); the run's resume state is "
+        "copied there when it is another folder.",
+    ),
+    note: str = typer.Option("", "--note", help="What this segment did (data, hardware)."),
+) -> None:
+    """Fold a training segment into the joined log: its rows, the resume state and the curve."""
+    relay = run_dir if relay is None else relay
+    entry = append_segment(run_dir, relay, note)
+    if relay.resolve() != run_dir.resolve():
+        for name in STATE_FILES:
+            if (run_dir / name).exists():
+                shutil.copy2(run_dir / name, relay / name)
+    plot_relay(relay / "relay_log.csv", relay / "relay_curve.png")
+    typer.echo(
+        f"segment {entry['segment']}: steps {entry['first_step']:,}-{entry['last_step']:,}, "
+        f"{entry['gpu_s']:.0f} s; wrote {relay}/relay_log.csv, relay.json, relay_curve.png"
+    )

@@ -282,6 +282,41 @@ def train(config: TrainConfig, *, resume: bool = False, progress: bool = True) -
         distributed.shutdown(ctx)
 
 
+@dataclass
+class _Run:
+    """The parts of one run, built before its first step and shared by every step."""
+
+    config: TrainConfig
+    ctx: distributed.DistContext
+    files: RunFiles
+    spec: InputSpec
+    kwargs: dict[str, Any]  # the model's constructor arguments, saved with each checkpoint
+    model: nn.Module
+    optimizer: torch.optim.Optimizer
+    scheduler: Any
+    compute: str
+    before: dict[str, float]  # the training behind the weights the run started from (--init)
+    start_step: int = 0
+    elapsed0: float = 0.0  # seconds trained before this process started (resume)
+    best: float = math.inf  # lowest validation median relative error so far
+    best_on: str = ""  # windows_fingerprint of the validation windows ``best`` was measured on
+    val_windows: list[Window] = field(default_factory=list)
+
+
+@dataclass
+class _Progress:
+    """Where the loop stands: step, clock, the loss since the last log row, last metrics."""
+
+    step: int
+    t0: float  # monotonic time at which the run (resumed time included) started
+    loss_sum: float = 0.0
+    loss_n: int = 0
+    last_loss: float = math.nan
+    val: dict[str, float] = field(default_factory=dict)
+    stopped_early: bool = False
+    batch: tuple[Any, Any] | None = None  # the last batch on the device, for the bare step
+
+
 def _train(
     config: TrainConfig, ctx: distributed.DistContext, *, resume: bool, progress: bool
 ) -> TrainResult:
@@ -292,7 +327,41 @@ def _train(
         )
     if config.threads:
         torch.set_num_threads(config.threads)
-    files = RunFiles(Path(config.out))
+    run = _build_run(config, ctx, resume)
+    net: nn.Module = run.model
+    if ctx.distributed:
+        ids = [ctx.device.index] if ctx.device.type == "cuda" else None
+        net = DistributedDataParallel(run.model, device_ids=ids)
+    events = events_on_device(ctx.device, config.data_path)
+    samples = training_samples(config, run.spec, events=events)
+    _prepare_validation(run)
+    if ctx.is_main:
+        run.files.write_config(config)
+        run.files.start_log(run.start_step)
+    writer = tensorboard(run.files.dir) if config.tensorboard and ctx.is_main else None
+    loader = _loader(samples, config, ctx, run.start_step)
+    bar = ProgressBar(config, run.start_step, enabled=progress and ctx.is_main)
+    clock = RunClock(config.batch_size)
+    state = _Progress(step=run.start_step, t0=time.monotonic() - run.elapsed0)
+    with bar, GracefulStop() as interrupt:
+        _steps(run, net, loader, state, clock, bar, writer, interrupt)
+    elapsed = time.monotonic() - state.t0
+    bare = None
+    if config.bare_steps and state.step > run.start_step and not interrupt.requested:
+        bare = _bare_step(run, state)
+    data_path = "events" if events else "dense"
+    if ctx.is_main:
+        if writer is not None:
+            writer.close()
+        run.files.plot_curve()
+        run.files.write_throughput(clock.samples_per_s, bare, data_path, ctx.world_size)
+    return TrainResult(run.files.dir, state.step, elapsed, state.last_loss, run.best, state.val,
+                       state.stopped_early, clock.samples_per_s, bare, data_path,
+                       interrupt.requested and state.stopped_early, run.compute)  # fmt: skip
+
+
+def _build_run(config: TrainConfig, ctx: distributed.DistContext, resume: bool) -> _Run:
+    """Model, optimizer and schedule, from ``--init`` or, on resume, from the run's state."""
     spec = input_spec_of(config)
     kwargs = model_kwargs_of(config, spec)
     seed_everything(config.seed)
@@ -303,35 +372,37 @@ def _train(
     trained = model.freeze(config.freeze) if config.freeze else list(model.parameters())
     optimizer = torch.optim.Adam(trained, lr=config.lr)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: lr_factor(s, config))
-
-    start_step, best, elapsed0, best_on = 0, math.inf, 0.0, ""
+    run = _Run(config, ctx, RunFiles(Path(config.out)), spec, kwargs, model, optimizer, scheduler,
+               compute, before)  # fmt: skip
     if resume:
-        start_step, best, elapsed0, best_on, before = load_resume(
-            files, model, optimizer, scheduler, ctx.device
+        run.start_step, run.best, run.elapsed0, run.best_on, run.before = load_resume(
+            run.files, model, optimizer, scheduler, ctx.device
         )
-        check_time_budget(config.max_minutes, elapsed0)
-    net: nn.Module = model
-    if ctx.distributed:
-        ids = [ctx.device.index] if ctx.device.type == "cuda" else None
-        net = DistributedDataParallel(model, device_ids=ids)
+        check_time_budget(config.max_minutes, run.elapsed0)
+    return run
 
-    events = events_on_device(ctx.device, config.data_path)
-    samples = training_samples(config, spec, events=events)
-    val_windows = validation_windows(config) if ctx.is_main else []
-    val_id = windows_fingerprint(val_windows)
-    if ctx.is_main and best_on != val_id and math.isfinite(best):
+
+def _prepare_validation(run: _Run) -> None:
+    """Load the validation windows on rank 0; forget a resumed best measured on other data."""
+    if not run.ctx.is_main:
+        return
+    run.val_windows = validation_windows(run.config)
+    val_id = windows_fingerprint(run.val_windows)
+    if run.best_on != val_id and math.isfinite(run.best):
         # A best score on other validation data must not block the new data's best.pt.
         print(
-            f"validation data differ from the resumed run's: best {best:.4f} forgotten",
+            f"validation data differ from the resumed run's: best {run.best:.4f} forgotten",
             file=sys.stderr,
         )
-        best = math.inf
-    if ctx.is_main:
-        files.write_config(config)
-        files.start_log(start_step)
-    writer = tensorboard(files.dir) if config.tensorboard and ctx.is_main else None
+        run.best = math.inf
+    run.best_on = val_id
 
-    loader = DataLoader(
+
+def _loader(
+    samples: TrainingSamples, config: TrainConfig, ctx: distributed.DistContext, start_step: int
+) -> DataLoader:
+    """This process's share of the batches of steps ``start_step .. iterations-1``."""
+    return DataLoader(
         samples,
         batch_size=config.batch_size // ctx.world_size,
         sampler=StepSampler(
@@ -343,113 +414,120 @@ def _train(
         persistent_workers=False,
         pin_memory=ctx.device.type == "cuda",
     )
-    bar = ProgressBar(config, start_step, enabled=progress and ctx.is_main)
-    clock = RunClock(config.batch_size)
-    t0 = time.monotonic() - elapsed0
-    step, loss_sum, loss_n, last_loss, val = start_step, 0.0, 0, math.nan, {}
-    stopped_early, amp = False, config.amp != "off"
+
+
+def _steps(
+    run: _Run,
+    net: nn.Module,
+    loader: DataLoader,
+    state: _Progress,
+    clock: RunClock,
+    bar: ProgressBar,
+    writer: Any,
+    interrupt: GracefulStop,
+) -> None:
+    """Train until the last iteration, the time budget or Ctrl-C, logging, validating and
+    checkpointing on the way (every process agrees on when to stop)."""
+    config, ctx = run.config, run.ctx
+    amp = config.amp != "off"
     net.train()
-    with bar, GracefulStop() as interrupt:
-        for inputs, targets in loader:
-            x, y = device_batch(inputs, targets, spec, ctx.device)
-            loss = train_step(net, optimizer, x, y, config.train_loss_start_step, config.grad_clip,
-                              amp)  # fmt: skip
-            scheduler.step()
-            step += 1
-            loss_sum += float(loss)
-            loss_n += 1
-            clock.step()
-            over_time = config.max_minutes > 0 and time.monotonic() - t0 > 60 * config.max_minutes
-            stop = distributed.agree(over_time or interrupt.requested, ctx)
-            final = stop or step == config.iterations
-            row: dict[str, Any] = {}
-            if step % config.log_every == 0 or final:
-                last_loss = distributed.mean_across(loss_sum / loss_n, ctx)
-                loss_sum, loss_n = 0.0, 0
-                elapsed = time.monotonic() - t0
-                row = {
-                    "step": step,
-                    "loss": f"{last_loss:.6g}",
-                    "lr": f"{scheduler.get_last_lr()[0]:.6g}",
-                    "elapsed_s": f"{elapsed:.1f}",
-                    "samples_per_s": f"{(step - start_step) * config.batch_size / max(elapsed - elapsed0, 1e-9):.2f}",  # noqa: E501
-                }
-            if step % config.val_every == 0 or final:
-                with clock.paused():
-                    if ctx.is_main:
-                        val = validate(model, spec, val_windows, config, ctx.device)
-                        row.update({k: f"{v:.6g}" for k, v in val.items()})
-                        better = val["val_median_rel"] < best
-                        best = min(best, val["val_median_rel"])
-                        _checkpoint(files, model, config, spec, kwargs, optimizer, scheduler, step,
-                                    (best, val_id), time.monotonic() - t0, val, better,
-                                    before)  # fmt: skip
-                    distributed.barrier(ctx)
-            if row and ctx.is_main:
-                row.setdefault("step", step)
-                files.append_log(row)
-                if writer is not None:
-                    for k, v in row.items():
-                        if k != "step" and v != "":
-                            writer.add_scalar(k, float(v), step)
-            bar.update(step, last_loss, val)
-            if stop:
-                stopped_early = step < config.iterations
-                break
-    elapsed = time.monotonic() - t0
-    bare = None
-    if config.bare_steps and step > start_step and not interrupt.requested:
-        bare = bare_step_rate(
-            model, x, y, windows=config.batch_size // ctx.world_size, lr=config.lr,
-            loss_start_step=config.train_loss_start_step, grad_clip=config.grad_clip,
-            steps=config.bare_steps, amp=amp,
-        )  # fmt: skip
-    data_path = "events" if events else "dense"
-    if ctx.is_main:
-        if writer is not None:
-            writer.close()
-        files.plot_curve()
-        files.write_throughput(clock.samples_per_s, bare, data_path, ctx.world_size)
-    return TrainResult(files.dir, step, elapsed, last_loss, best, val, stopped_early,
-                       clock.samples_per_s, bare, data_path,
-                       interrupt.requested and stopped_early, compute)  # fmt: skip
+    for inputs, targets in loader:
+        x, y = device_batch(inputs, targets, run.spec, ctx.device)
+        loss = train_step(net, run.optimizer, x, y, config.train_loss_start_step,
+                          config.grad_clip, amp)  # fmt: skip
+        run.scheduler.step()
+        state.batch = (x, y)
+        state.step += 1
+        state.loss_sum += float(loss)
+        state.loss_n += 1
+        clock.step()
+        over_time = config.max_minutes > 0 and time.monotonic() - state.t0 > 60 * config.max_minutes
+        stop = distributed.agree(over_time or interrupt.requested, ctx)
+        final = stop or state.step == config.iterations
+        row = _log_row(run, state) if state.step % config.log_every == 0 or final else {}
+        if state.step % config.val_every == 0 or final:
+            with clock.paused():
+                row.update(_validate_and_checkpoint(run, state))
+        if row and ctx.is_main:
+            _write_row(run.files, writer, {"step": state.step, **row})
+        bar.update(state.step, state.last_loss, state.val)
+        if stop:
+            state.stopped_early = state.step < config.iterations
+            break
+
+
+def _log_row(run: _Run, state: _Progress) -> dict[str, Any]:
+    """The loss (averaged over processes) and rates since the last row; restarts the average."""
+    state.last_loss = distributed.mean_across(state.loss_sum / state.loss_n, run.ctx)
+    state.loss_sum, state.loss_n = 0.0, 0
+    elapsed = time.monotonic() - state.t0
+    rate = (state.step - run.start_step) * run.config.batch_size / max(elapsed - run.elapsed0, 1e-9)
+    return {
+        "step": state.step,
+        "loss": f"{state.last_loss:.6g}",
+        "lr": f"{run.scheduler.get_last_lr()[0]:.6g}",
+        "elapsed_s": f"{elapsed:.1f}",
+        "samples_per_s": f"{rate:.2f}",
+    }
+
+
+def _validate_and_checkpoint(run: _Run, state: _Progress) -> dict[str, str]:
+    """Validate and checkpoint on rank 0 (the others wait); returns the metrics' log columns."""
+    columns = {}
+    if run.ctx.is_main:
+        state.val = validate(run.model, run.spec, run.val_windows, run.config, run.ctx.device)
+        columns = {k: f"{v:.6g}" for k, v in state.val.items()}
+        better = state.val["val_median_rel"] < run.best
+        run.best = min(run.best, state.val["val_median_rel"])
+        _checkpoint(run, state.step, time.monotonic() - state.t0, state.val, better)
+    distributed.barrier(run.ctx)
+    return columns
+
+
+def _write_row(files: RunFiles, writer: Any, row: dict[str, Any]) -> None:
+    """Append a row to log.csv and, with --tensorboard, its numbers to the scalars."""
+    files.append_log(row)
+    if writer is not None:
+        for k, v in row.items():
+            if k != "step" and v != "":
+                writer.add_scalar(k, float(v), row["step"])
+
+
+def _bare_step(run: _Run, state: _Progress) -> BareStep:
+    """Time bare steps on the last batch, to compare with the run's samples/s."""
+    config = run.config
+    assert state.batch is not None  # the run has taken a step
+    x, y = state.batch
+    return bare_step_rate(
+        run.model, x, y, windows=config.batch_size // run.ctx.world_size, lr=config.lr,
+        loss_start_step=config.train_loss_start_step, grad_clip=config.grad_clip,
+        steps=config.bare_steps, amp=config.amp != "off",
+    )  # fmt: skip
 
 
 def _checkpoint(
-    files: RunFiles,
-    model: nn.Module,
-    config: TrainConfig,
-    spec: InputSpec,
-    kwargs: dict[str, Any],
-    optimizer: torch.optim.Optimizer,
-    scheduler: Any,
-    step: int,
-    best: tuple[float, str],
-    elapsed_s: float,
-    val: dict[str, float],
-    better: bool,
-    before: dict[str, float],
+    run: _Run, step: int, elapsed_s: float, val: dict[str, float], better: bool
 ) -> None:
-    """Write last.pt (and best.pt when ``better``) and resume.pt; ``best`` is (the lowest
-    validation median relative error, the :func:`windows_fingerprint` it was measured on);
-    ``before``: the training of the checkpoint this run started from (``--init``)."""
+    """Write last.pt (and best.pt when ``better``) and resume.pt, which keeps the best score
+    and the fingerprint of the validation windows it was measured on."""
+    config = run.config
     extra = {"config": config.as_dict(), "step": step, "metrics": val, "elapsed_s": elapsed_s,
-             "before": before}  # fmt: skip
+             "before": run.before}  # fmt: skip
     save = functools.partial(
-        save_checkpoint, model=model, name=config.model, model_kwargs=kwargs,
-        input_spec=spec.as_dict(), extra=extra,
+        save_checkpoint, model=run.model, name=config.model, model_kwargs=run.kwargs,
+        input_spec=run.spec.as_dict(), extra=extra,
     )  # fmt: skip
-    save(files.last)
+    save(run.files.last)
     if better:
-        save(files.best)
+        save(run.files.best)
     state = {
         "step": step,
-        "best": best[0],
-        "best_on": best[1],
+        "best": run.best,
+        "best_on": run.best_on,
         "elapsed_s": elapsed_s,
-        "optimizer": optimizer.state_dict(),
-        "scheduler": scheduler.state_dict(),
+        "optimizer": run.optimizer.state_dict(),
+        "scheduler": run.scheduler.state_dict(),
         "rng": rng_states(),
     }
-    with atomic_path(files.resume) as tmp:
+    with atomic_path(run.files.resume) as tmp:
         torch.save(state, tmp)

@@ -20,12 +20,9 @@ from __future__ import annotations
 
 import csv
 import json
-import shutil
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
-
-import typer
 
 from spikegyro.errors import InputError
 from spikegyro.events.io import atomic_path
@@ -150,27 +147,3 @@ def plot_relay(relay_csv: str | Path, out_png: str | Path) -> Path:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
     return out_png
-
-
-def relay_log_command(
-    run_dir: Path = typer.Argument(..., help="The `spikegyro train` run of the new segment."),
-    relay: Path = typer.Option(
-        None,
-        "--relay",
-        help="Folder of the joined log (default: the run directory); the run's resume state is "
-        "copied there when it is another folder.",
-    ),
-    note: str = typer.Option("", "--note", help="What this segment did (data, hardware)."),
-) -> None:
-    """Fold a training segment into the joined log: its rows, the resume state and the curve."""
-    relay = run_dir if relay is None else relay
-    entry = append_segment(run_dir, relay, note)
-    if relay.resolve() != run_dir.resolve():
-        for name in STATE_FILES:
-            if (run_dir / name).exists():
-                shutil.copy2(run_dir / name, relay / name)
-    plot_relay(relay / "relay_log.csv", relay / "relay_curve.png")
-    typer.echo(
-        f"segment {entry['segment']}: steps {entry['first_step']:,}-{entry['last_step']:,}, "
-        f"{entry['gpu_s']:.0f} s; wrote {relay}/relay_log.csv, relay.json, relay_curve.png"
-    )
