@@ -5,8 +5,9 @@ weights, surrogate cut 0.05 on both paths so that their gradients agree) on real
 half simulated with the ideal sensor, half with the ``davis240c`` preset (seeded, the same every
 run). Both paths run in one process, their steps interleaved (so both see the same background
 load), on 1 and 2 threads; the time is the median of ``--repeats`` steps after one warm-up step
-each, divided by the batch. Peak memory: one step of each path in its own subprocess (peak
-resident set, VmHWM reset just before the step; growth = peak minus the level before it).
+each, divided by the batch, as wall time and as the process's CPU time. Peak memory: one step of
+each path in its own subprocess (peak resident set, VmHWM reset just before the step; growth =
+peak minus the level before it).
 
 Gradients: on the same batch, the largest relative norm ‖g_sparse − g_dense‖/‖g_dense‖ over the
 parameter tensors (float32), and the spikes that differ between the two forward passes (a
@@ -80,19 +81,23 @@ def make_step(compute: str, threads: int, x, y) -> tuple[Callable[[], None], SNN
     return lambda: train_step(net, optimizer, x, y, START), net
 
 
-def step_times(x, y, threads: int, repeats: int) -> dict[str, float]:
-    """Median seconds per window of each path, steps interleaved, one warm-up step each."""
+def step_times(x, y, threads: int, repeats: int) -> dict[str, tuple[float, float]]:
+    """Median (wall, CPU) seconds per window of each path, steps interleaved, one warm-up step
+    each. CPU time (all threads of the process) does not count waiting for a busy core."""
     torch.set_num_threads(threads)
     steps = {c: make_step(c, threads, x, y)[0] for c in ("dense", "sparse")}
     for step in steps.values():
         step()
-    times: dict[str, list[float]] = {c: [] for c in steps}
+    times: dict[str, list[tuple[float, float]]] = {c: [] for c in steps}
     for _ in range(repeats):
         for compute, step in steps.items():
-            start = time.perf_counter()
+            start, cpu = time.perf_counter(), time.process_time()
             step()
-            times[compute].append(time.perf_counter() - start)
-    return {c: statistics.median(t) / BATCH for c, t in times.items()}
+            times[compute].append((time.perf_counter() - start, time.process_time() - cpu))
+    return {
+        c: tuple(statistics.median(v[k] for v in t) / BATCH for k in (0, 1))
+        for c, t in times.items()
+    }
 
 
 def peak_memory(compute: str, threads: int) -> dict[str, float]:
@@ -163,21 +168,24 @@ def main() -> None:
             command = [sys.executable, __file__, "--memory-of", f"{compute}:{threads}"]
             out = subprocess.run(command, capture_output=True, text=True, check=True).stdout
             memory = json.loads(out.strip().splitlines()[-1])
-            rows.append({"compute": compute, "threads": threads, "s": seconds[compute], **memory})
-            print(f"  {compute:6s} {threads} thr {seconds[compute]:.3f} s/window", file=sys.stderr)
+            wall, cpu = seconds[compute]
+            rows.append({"compute": compute, "threads": threads, "s": wall, "cpu_s": cpu, **memory})
+            print(f"  {compute:6s} {threads} thr {wall:.3f} s/window", file=sys.stderr)
     check = gradient_check(x, y)
     print(
         f"SNN-6 training step (forward + backward + Adam), 240x180, T = {STEPS}, batch {BATCH} "
         f"(4 ideal + 4 davis240c windows, input density {density:.2%}), surrogate cut {CUT}, "
         f"torch {torch.__version__}, median of {args.repeats} interleaved steps"
     )
-    print("| threads | path | s per window | peak RSS (MiB) | growth (MiB) | dense / this |")
-    print("|---:|---|---:|---:|---:|---:|")
+    print("| threads | path | s per window | dense / this | CPU s per window | dense / this "
+          "(CPU) | peak RSS (MiB) | growth (MiB) |")  # fmt: skip
+    print("|---:|---|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         dense = next(o for o in rows if o["threads"] == r["threads"] and o["compute"] == "dense")
         print(
-            f"| {r['threads']} | {r['compute']} | {r['s']:.3f} | {r['peak_mib']:.0f} | "
-            f"{r['growth_mib']:.0f} | {dense['s'] / r['s']:.2f}x |"
+            f"| {r['threads']} | {r['compute']} | {r['s']:.3f} | {dense['s'] / r['s']:.2f}x | "
+            f"{r['cpu_s']:.3f} | {dense['cpu_s'] / r['cpu_s']:.2f}x | {r['peak_mib']:.0f} | "
+            f"{r['growth_mib']:.0f} |"
         )
     rel = check["relative"]
     print("gradient relative norm difference per tensor: "
@@ -200,6 +208,9 @@ def main() -> None:
             "dense_s_per_window": two["dense"]["s"],
             "sparse_s_per_window": two["sparse"]["s"],
             "speedup": two["dense"]["s"] / two["sparse"]["s"],
+            "dense_cpu_s_per_window": two["dense"]["cpu_s"],
+            "sparse_cpu_s_per_window": two["sparse"]["cpu_s"],
+            "cpu_speedup": two["dense"]["cpu_s"] / two["sparse"]["cpu_s"],
             "threads": max(args.threads),
             "max_grad_rel_diff": max(rel.values()),
             "grad_rel_diff": rel,
