@@ -170,9 +170,12 @@ def read_predictions(path: str | os.PathLike) -> dict[str, np.ndarray]:
             return {k: f[k][()] for k in names if k in f}
     with open(path) as f:
         header = f.readline().strip().split(",")
-    table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    if table.shape[0] == 0:
-        table = np.zeros((0, len(header)))
+        has_rows = bool(f.readline().strip())
+    table = (
+        np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+        if has_rows
+        else np.zeros((0, len(header)))
+    )
     out = {"t_us": np.rint(table[:, 0] * 1e6).astype(np.int64), "omega": table[:, 1:4]}
     if "gyro_wx" in header:
         i = header.index("gyro_wx")
