@@ -110,7 +110,15 @@ def interrupt_after(
     """Run ``command``; send SIGINT once ``ready(pid)`` holds; wait for it to end."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
     proc = subprocess.Popen(
-        command, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        command,
+        cwd=cwd,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        # A test run started in the background (nohup, `cmd &` in a script) ignores SIGINT, and
+        # an ignored signal stays ignored across exec: give the command a terminal's default.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     deadline = time.monotonic() + timeout_s
     while proc.poll() is None and not ready(proc.pid) and time.monotonic() < deadline:
