@@ -8,6 +8,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from spikegyro.events.windows import series_per_window
 from spikegyro.train.data import InputSpec, Window, as_input_spec, encode_window, model_batch
 
 
@@ -57,13 +58,11 @@ def predict_windows(
     model.eval()
     if device is None:
         device = next(iter(model.parameters())).device
-    out = np.zeros((len(windows), spec.window_ms, 3), dtype=np.float32)
-    for i in range(0, len(windows), batch_size):
-        chunk = windows[i : i + batch_size]
+
+    def forward(chunk: list[Window]) -> np.ndarray:
         inputs = torch.stack([encode_window(w, spec) for w in chunk])
         x, _ = model_batch(inputs, None, spec)
         y = model(x.to(device)).float().cpu()
-        out[i : i + len(chunk)] = per_millisecond(y, spec, len(chunk)).numpy()
-        if progress is not None:
-            progress(i + len(chunk))
-    return out
+        return per_millisecond(y, spec, len(chunk)).numpy()
+
+    return series_per_window(forward, windows, spec.window_ms, batch_size, progress, np.float32)
