@@ -18,7 +18,14 @@ import typer
 from typer.core import TyperGroup
 
 from spikegyro import __version__
-from spikegyro.errors import InputError, InputWarning, Interrupted, is_interrupt
+from spikegyro.errors import (
+    InputError,
+    InputWarning,
+    Interrupted,
+    check_interrupt,
+    install_sigint_handler,
+    is_interrupt,
+)
 
 _COMMANDS: dict[str, str] = {
     "info": "spikegyro.events.commands:info",
@@ -138,8 +145,10 @@ def run(argv: Sequence[str] | None = None) -> int:
     """
     _state["debug"] = False
     warnings.showwarning = _show_warning
+    install_sigint_handler()
     try:
         code = app(args=None if argv is None else list(argv), standalone_mode=False)
+        check_interrupt()  # a Ctrl-C that compiled code swallowed still means stop
     except InputError as exc:
         if _state["debug"]:
             raise

@@ -18,6 +18,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from spikegyro.errors import check_interrupt
+
 BIN_US = 1000
 """Length of one step of a per-ms series, µs."""
 
@@ -84,6 +86,7 @@ def series_per_window(
     out = np.zeros((len(windows), num_steps, 3), dtype=dtype)
     for i in range(0, len(windows), batch_size):
         batch = windows[i : i + batch_size]
+        check_interrupt()
         out[i : i + len(batch)] = predict(batch)
         if progress is not None:
             progress(i + len(batch))

@@ -24,7 +24,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from spikegyro.errors import InputError
+from spikegyro.errors import InputError, check_interrupt
 from spikegyro.evaluate import metrics
 from spikegyro.events.calib import Calibration, PinholeCamera
 from spikegyro.events.core import EventArray, GyroTrace
@@ -529,6 +529,7 @@ def predict_stream(
     with PredictionWriter(out_path, with_gyro=gyro is not None, with_confidence=confidence) as w:
         last_t = t0
         for chunk in chunks:
+            check_interrupt()
             run.result.events += len(chunk)
             last_t = int(chunk.t[-1])
             run.emit(w, estimator.update(chunk))
