@@ -9,21 +9,21 @@
 # `spikegyro train --data OUT_DIR`.
 set -euo pipefail
 [ $# -ge 2 ] || { sed -n '5p' "$0" | sed 's/^# *//' >&2; exit 2; }
-out=$1
+dest=$1
 shift
 for d in "$@"; do
     [ -f "$d/meta.json" ] || { echo "mix_datasets.sh: $d has no meta.json (not a dataset)" >&2; exit 2; }
 done
-mkdir -p "$out"
-cp "$1/meta.json" "$out/meta.json"
+mkdir -p "$dest"
+cp "$1/meta.json" "$dest/meta.json"
 for split in train val test; do
-    mkdir -p "$out/$split"
+    mkdir -p "$dest/$split"
     for d in "$@"; do
         name=$(basename "$(cd "$d" && pwd)")
         for f in "$d/$split"/*.h5; do
             [ -e "$f" ] || continue
-            ln -sf "$(cd "$(dirname "$f")" && pwd)/$(basename "$f")" "$out/$split/${name}_$(basename "$f")"
+            ln -sf "$(cd "$(dirname "$f")" && pwd)/$(basename "$f")" "$dest/$split/${name}_$(basename "$f")"
         done
     done
 done
-echo "$out: $(find "$out/train" -name '*.h5' | wc -l) train, $(find "$out/val" -name '*.h5' | wc -l) val, $(find "$out/test" -name '*.h5' | wc -l) test sequences"
+echo "$dest: $(find "$dest/train" -name '*.h5' | wc -l) train, $(find "$dest/val" -name '*.h5' | wc -l) val, $(find "$dest/test" -name '*.h5' | wc -l) test sequences"

@@ -10,9 +10,10 @@ import torch
 from stream_helpers import TinySNN, exact_double, random_events, step_offsets
 
 from spikegyro.events.representations import spike_tensor
+from spikegyro.kernel_fit import fit_alpha_kernel, fit_exp_kernel
 from spikegyro.snn.kernels import refractory_kernel, srm_kernel
 from spikegyro.stream.model import spec_from_model
-from spikegyro.stream.stateful import StreamingSNN, fit_alpha_kernel, fit_exp_kernel
+from spikegyro.stream.stateful import StreamingSNN
 
 H, W = 24, 32
 

@@ -38,6 +38,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from spikegyro.kernel_fit import fit_alpha_kernel
+
 _MIN_CAPACITY = 1024
 
 
@@ -173,15 +175,8 @@ def alpha_constants(kernel: np.ndarray, dtype: type) -> tuple[np.ndarray, int]:
     the last bit of a double they give c = e/τs and p = exp(−1/τs) to rounding); the rest of the
     taps is checked against them.
     """
-    taps = np.asarray(kernel, dtype=np.float64)
-    if taps.size < 3 or taps[0] != 0 or taps[1] <= 0:
-        raise ValueError(f"PSP kernel: expected c·k·p^k with at least 3 taps, got {taps[:4]}")
-    p = taps[2] / (2.0 * taps[1])
-    c = taps[1] / p
-    k = np.arange(taps.size)
-    if not np.allclose(taps, c * k * p**k, rtol=1e-5, atol=1e-7):
-        raise ValueError("PSP kernel: taps are not of the form c·k·p^k")
-    size = taps.size
+    c, p = fit_alpha_kernel(kernel, "PSP kernel")
+    size = np.asarray(kernel).size
     consts = np.array([c, p, 1.0, -(p**size), -size * p**size], dtype=dtype)
     return consts, size
 
