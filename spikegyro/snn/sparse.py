@@ -35,6 +35,7 @@ from spikegyro.snn.sparse_forward import (
     dense_to_lists,
     fanout_tables,
     layer_forward,
+    refractory_constants,
 )
 
 Lists = tuple[np.ndarray, np.ndarray, np.ndarray]
@@ -52,7 +53,7 @@ class _Layer:
     cols: tuple[np.ndarray, np.ndarray]
     alpha: np.ndarray
     taps: int
-    ref: np.ndarray
+    refractory: tuple[np.ndarray, int]
     theta: np.generic
     half_width: np.generic
     surrogate: np.ndarray
@@ -81,7 +82,7 @@ class _Layer:
             cols=fanout_tables(in_hw[1], out_hw[1], kernel, conv.stride),
             alpha=alpha,
             taps=taps,
-            ref=conv.ref_kernel.detach().cpu().numpy().astype(dtype),
+            refractory=refractory_constants(conv.ref_kernel.detach().double().cpu().numpy(), dtype),
             theta=dtype(p.theta),
             half_width=dtype(width),
             surrogate=np.array(
@@ -97,7 +98,7 @@ class _Layer:
         """(output spike lists, (active offsets, indices, potentials))."""
         spk_off, spk_idx, act_off, act_idx, act_u = layer_forward(
             inputs, self.weight, self.geometry, self.out_pixels, self.rows, self.cols,
-            self.alpha, self.taps, self.ref, (self.theta, self.half_width, record),
+            self.alpha, self.taps, self.refractory, (self.theta, self.half_width, record),
         )  # fmt: skip
         return (spk_off, spk_idx, np.ones(spk_idx.size, self.weight.dtype)), (
             act_off,
@@ -140,10 +141,11 @@ def _pool_backward(
     """∂L/∂s at the pairs (offsets, index) from ∂L/∂pooled (features, T)."""
     cells = pooling.shape[0]
     out = np.zeros(index.size, grad.dtype)
+    zero = np.zeros(1, grad.dtype)[0]  # a literal 0 would make the sum float64
     for t in range(offsets.size - 1):
         for i in range(offsets[t], offsets[t + 1]):
             pixel, c = divmod(index[i], channels)
-            total = grad[0, 0] * 0
+            total = zero
             for cell in range(cells):
                 total += pooling[cell, pixel] * grad[c * cells + cell, t]
             out[i] = total

@@ -34,7 +34,7 @@ from spikegyro.snn.sparse_forward import pixel_group, targets
 _FUTURE = np.iinfo(np.int64).max
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
 def _deltas(act_u: np.ndarray, grad_s: np.ndarray, surrogate: np.ndarray) -> np.ndarray:
     """δ = ρ(u)·∂L/∂s at the recorded pairs; surrogate = [θ, scale_rho/θ, −1/(tau_rho·θ)]."""
     theta, height, slope = surrogate[0], surrogate[1], surrogate[2]
@@ -44,29 +44,28 @@ def _deltas(act_u: np.ndarray, grad_s: np.ndarray, surrogate: np.ndarray) -> np.
     return out
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
 def _feed(
     state: np.ndarray,
     index: np.ndarray,
     delta: np.ndarray,
     start: int,
     stop: int,
-    weight_a: float,
-    weight_d: float,
+    weights: np.ndarray,
     live: np.ndarray,
     until: int,
 ) -> None:
-    """A += weight_a·δ, D += weight_d·δ at the pairs ``start:stop``; with ``live`` non-empty,
-    their pixels stay live down to step ``until`` (a new δ; steps only decrease)."""
+    """A += weights[0]·δ, D += weights[1]·δ at the pairs ``start:stop``; with ``live``
+    non-empty, their pixels stay live down to step ``until`` (a new δ; steps only decrease)."""
     cout = state.shape[1] // max(live.size, 1)
     for j in range(start, stop):
-        state[0, index[j]] += weight_a * delta[j]
-        state[1, index[j]] += weight_d * delta[j]
+        state[0, index[j]] += weights[0] * delta[j]
+        state[1, index[j]] += weights[1] * delta[j]
         if live.size:
             live[index[j] // cout] = until
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
 def _adjoint_step(
     state: np.ndarray, grad_z: np.ndarray, live: np.ndarray, t: int, alpha: np.ndarray
 ) -> None:
@@ -100,7 +99,7 @@ def _adjoint_step(
         pixel = end
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
 def _weight_grad_at(
     grad_w: np.ndarray,
     grad_z: np.ndarray,
@@ -131,7 +130,7 @@ def _weight_grad_at(
         i = end
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
 def _input_grad_at(
     out: np.ndarray,
     weight: np.ndarray,
@@ -147,24 +146,25 @@ def _input_grad_at(
     """out[j] = convᵀ(∂L/∂z[t])[index[j]] for the pairs of the layer below at step t."""
     offsets, index = below
     cin, cout = weight.shape[1], weight.shape[2]
+    zero = np.zeros(1, out.dtype)[0]  # a literal 0 would make the sum float64
     i, stop = offsets[t], offsets[t + 1]
     while i < stop:
         pixel_in, end = pixel_group(index, i, stop, cin)
         for k in range(targets(pixel_in, geometry, rows, cols, reach)):
             pixel, tap = reach[0, k], reach[1, k]
             if live[pixel] >= t:
-                continue
+                continue  # ∂L/∂z is exactly 0 there
             grad = grad_z[pixel * cout : (pixel + 1) * cout]
             for e in range(i, end):
                 w = weight[tap, index[e] - pixel_in * cin]
-                total = out[e] * 0
+                total = zero
                 for o in range(cout):
                     total += w[o] * grad[o]
                 out[e] += total
         i = end
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def layer_backward(
     active: tuple[np.ndarray, np.ndarray, np.ndarray],
     grad_s: np.ndarray,
@@ -208,11 +208,13 @@ def layer_backward(
     # Per pixel, the step at which its last δ leaves the kernel (the state is cleared there);
     # ∂L/∂z may be non-zero only at the steps above it, back to the last δ ("never": _FUTURE).
     live = np.full(out_pixels, _FUTURE, np.int64)
+    head, tail = alpha[2:4].copy(), alpha[3:5]  # δ enters A only; leaves A and D
+    head[1] = 0.0
     for t in range(steps - 1, -1, -1):
         if t + taps < steps:  # the δ of step t + L leave the kernel
-            _feed(state, act_index, delta, act_offsets[t + taps], act_offsets[t + taps + 1],
-                  alpha[3], alpha[4], live[:0], 0)  # fmt: skip
-        _feed(state, act_index, delta, act_offsets[t], act_offsets[t + 1], alpha[2], 0.0, live,
+            _feed(state, act_index, delta, act_offsets[t + taps], act_offsets[t + taps + 1], tail,
+                  live[:0], 0)  # fmt: skip
+        _feed(state, act_index, delta, act_offsets[t], act_offsets[t + 1], head, live,
               t - taps)  # fmt: skip
         _adjoint_step(state, grad_z, live, t, alpha)
         _weight_grad_at(grad_w, grad_z, live, t, inputs, geometry, rows, cols, reach)

@@ -15,8 +15,9 @@ computes in batch: ``z[t] = conv(s_in[t])``, ``v[t] = Σ_k ε[k]·z[t − k]``, 
       A[t] = p·A[t−1] + z[t] − pᴸ·z[t−L]
       D[t] = p·D[t−1] + p·A[t−1] − L·pᴸ·z[t−L]          v[t] = c·D[t]
 
-- the refractory responses ν[1 … M−1] of each output spike are added into a ring of M future
-  potential maps (the batch path adds the same taps to the same future rows);
+- the refractory kernel ν[k] = a·q^(k−1) (1 ≤ k < M) runs as a single pole R on the same
+  neurons: ``R[t+1] = q·R[t] + a·s[t] − a·q^(M−1)·s[t+1−M]``, the last term read from the spike
+  list of M − 1 steps ago, so that a spike costs two writes instead of M − 1;
 - a pixel (all output channels at one position) is visited only while some input of the last
   L steps or some own spike of the last M−1 steps may still act on it; when its last input has
   expired its state is set to exactly 0. Adjacent live pixels are advanced as one run of
@@ -38,12 +39,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from spikegyro.kernel_fit import fit_alpha_kernel
+from spikegyro.kernel_fit import fit_alpha_kernel, fit_exp_kernel
 
 _MIN_CAPACITY = 1024
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _grow(array: np.ndarray, size: int) -> np.ndarray:
     """``array`` if it holds at least ``size`` entries, else a copy at least twice as large."""
     if size <= array.size:
@@ -53,7 +54,7 @@ def _grow(array: np.ndarray, size: int) -> np.ndarray:
     return bigger
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def dense_to_lists(
     x: np.ndarray, threshold: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -87,7 +88,7 @@ def dense_to_lists(
     return offsets, index, values
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def fanout_tables(
     in_size: int, out_size: int, kernel: int, stride: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -101,7 +102,7 @@ def fanout_tables(
     return first, last
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def pixel_group(index: np.ndarray, start: int, stop: int, cin: int) -> tuple[int, int]:
     """(input pixel of ``index[start]``, end of the run of entries at that pixel within
     ``start:stop``): entries of one pixel are adjacent in a list sorted by flat index."""
@@ -112,7 +113,7 @@ def pixel_group(index: np.ndarray, start: int, stop: int, cin: int) -> tuple[int
     return pixel, end
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def targets(
     pixel_in: int,
     geometry: np.ndarray,
@@ -134,7 +135,7 @@ def targets(
     return n
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _scatter(
     synaptic: np.ndarray,
     live: np.ndarray,
@@ -148,15 +149,19 @@ def _scatter(
     rows: tuple[np.ndarray, np.ndarray],
     cols: tuple[np.ndarray, np.ndarray],
     reach: np.ndarray,
+    first_pixel: int,
 ) -> None:
-    """Add ``value·W[tap, c, :]`` to the synaptic input map of every output pixel each input
-    ``start:stop`` reaches (the convolution as a scatter from its non-zero inputs)."""
+    """Add ``value·W[tap, c, :]`` to the synaptic input map of every output pixel of the tile
+    (``first_pixel`` on, as many as ``live`` holds) each input ``start:stop`` reaches (the
+    convolution as a scatter from its non-zero inputs)."""
     cin, cout = weight.shape[1], weight.shape[2]
     i = start
     while i < stop:
         pixel_in, end = pixel_group(index, i, stop, cin)
         for k in range(targets(pixel_in, geometry, rows, cols, reach)):
-            pixel, tap = reach[0, k], reach[1, k]
+            pixel, tap = reach[0, k] - first_pixel, reach[1, k]
+            if pixel < 0 or pixel >= live.size:
+                continue  # another tile's
             # Slice views let LLVM vectorise the loop (no wrap-around checks on indices).
             target = synaptic[pixel * cout : (pixel + 1) * cout]
             for e in range(i, end):
@@ -181,34 +186,43 @@ def alpha_constants(kernel: np.ndarray, dtype: type) -> tuple[np.ndarray, int]:
     return consts, size
 
 
-@numba.njit(cache=True, nogil=True)
+def refractory_constants(kernel: np.ndarray, dtype: type) -> tuple[np.ndarray, int]:
+    """([a, q, −a·q^(M−1)] in ``dtype``, M) for the refractory taps ν[k] = a·q^(k−1), 1 ≤ k < M
+    (potential units; ν[0] = 0)."""
+    a, q = fit_exp_kernel(kernel, "refractory kernel")
+    size = np.asarray(kernel).size
+    return np.array([a, q, -a * q ** (size - 1)], dtype=dtype), size
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _advance(
     state: np.ndarray,
     z_now: np.ndarray,
     z_old: np.ndarray,
-    refractory: np.ndarray,
     potential: np.ndarray,
     n0: int,
     n1: int,
     alpha: np.ndarray,
+    q_ref: float,
 ) -> None:
     """u[t] of the neurons ``n0:n1`` into ``potential`` and one step of their recursions; takes
-    in z[t] and the tail of z[t − L] (its slot is cleared for z[t + 1]) and the refractory
-    responses due now (cleared). Branch-free over contiguous memory, so it vectorises."""
+    in z[t] and the tail of z[t − L] (its slot is cleared for z[t + 1]); the refractory pole
+    decays by ``q_ref`` (this step's spikes are added after thresholding). Branch-free over
+    contiguous memory, so it vectorises."""
     c_eps, p_eps, tail_a, tail_d = alpha[0], alpha[1], alpha[3], alpha[4]
-    a, d, u = state[0, n0:n1], state[1, n0:n1], potential[n0:n1]
-    z, old, ref = z_now[n0:n1], z_old[n0:n1], refractory[n0:n1]
-    for o in range(n1 - n0):  # a = p·A[t−1], d = p·(D[t−1] + A[t−1]) from the last step
+    a, d, r, u = state[0, n0:n1], state[1, n0:n1], state[2, n0:n1], potential[n0:n1]
+    z, old = z_now[n0:n1], z_old[n0:n1]
+    for o in range(n1 - n0):  # a = p·A[t−1], d = p·(D[t−1] + A[t−1]), r = R[t] from the last step
         dd = d[o] + tail_d * old[o]
         aa = a[o] + z[o] + tail_a * old[o]
-        u[o] = c_eps * dd + ref[o]
+        u[o] = c_eps * dd + r[o]
         d[o] = p_eps * (dd + aa)
         a[o] = p_eps * aa
+        r[o] = q_ref * r[o]
         old[o] = 0.0
-        ref[o] = 0.0
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _threshold(
     potential: np.ndarray,
     n0: int,
@@ -218,9 +232,11 @@ def _threshold(
     record: bool,
     lists: tuple[np.ndarray, np.ndarray, np.ndarray],
     counts: np.ndarray,
+    base: int,
 ) -> None:
-    """Append the neurons ``n0:n1`` with u ≥ θ to the spike list and, with ``record``, those with
-    |u − θ| ≤ half-width (and their u) to the active lists; ``counts`` = [spikes, active]."""
+    """Append the neurons ``n0:n1`` (tile-local; ``base`` + n in the layer) with u ≥ θ to the
+    spike list and, with ``record``, those with |u − θ| ≤ half-width (and their u) to the active
+    lists; ``counts`` = [spikes, active]."""
     spikes, act_index, act_u = lists
     n_spikes, n_act = counts[0], counts[1]
     # Branch-free compaction (every neuron is written, the count advances only where the test
@@ -229,48 +245,62 @@ def _threshold(
     if record:
         for n in range(n0, n1):
             u = potential[n]
-            act_index[n_act] = n
+            act_index[n_act] = base + n
             act_u[n_act] = u
             n_act += abs(u - theta) <= half_width
-            spikes[n_spikes] = n
+            spikes[n_spikes] = base + n
             n_spikes += u >= theta
     else:
         for n in range(n0, n1):
-            spikes[n_spikes] = n
+            spikes[n_spikes] = base + n
             n_spikes += potential[n] >= theta
     counts[0], counts[1] = n_spikes, n_act
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _refract(
-    spikes: np.ndarray, ring: np.ndarray, ref_taps: np.ndarray, live: np.ndarray, t: int, cout: int
+    spikes: np.ndarray,
+    expiring: np.ndarray,
+    pole: np.ndarray,
+    refractory: np.ndarray,
+    live: np.ndarray,
+    t: int,
+    last: int,
+    base: int,
 ) -> None:
-    """Add ν[1 … M−1] of each new spike to its neuron's next M − 1 potential maps and keep its
-    pixel live until they are used."""
-    ring_len = ref_taps.size
+    """R[t+1] of the neurons that spiked at step t (+a) and M − 1 steps earlier (−a·q^(M−1), the
+    kernel's truncation; skipped where the pixel's state was just cleared); a new spike keeps its
+    pixel live while its response lasts, to step ``last`` = t + M − 1. Neurons are numbered in
+    the layer, ``base`` + the tile's own. refractory = [a, q, −a·q^(M−1)]
+    (:func:`refractory_constants`)."""
+    cout = pole.size // live.size
+    for n in expiring:
+        if live[(n - base) // cout] > t:
+            pole[n - base] += refractory[2]
     for n in spikes:
-        for k in range(1, ring_len):
-            ring[(t + k) % ring_len, n] += ref_taps[k]
-        pixel = n // cout
-        live[pixel] = max(live[pixel], t + ring_len - 1)
+        pixel = (n - base) // cout
+        pole[n - base] += refractory[0]
+        live[pixel] = max(live[pixel], last)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _update(
     state: np.ndarray,
     z_now: np.ndarray,
     z_old: np.ndarray,
-    refractory: np.ndarray,
     potential: np.ndarray,
     live: np.ndarray,
     t: int,
     alpha: np.ndarray,
+    q_ref: float,
     thresholds: tuple[float, float, bool],
     lists: tuple[np.ndarray, np.ndarray, np.ndarray],
     counts: np.ndarray,
+    base: int,
 ) -> None:
-    """Step ``t`` of every live pixel, in runs of adjacent ones; a pixel whose last input and own
-    spike have expired has its state cleared (the rounding residue of the tail) and leaves."""
+    """Step ``t`` of every live pixel of the tile, in runs of adjacent ones; a pixel whose last
+    input and own spike have expired has its state cleared (the rounding residue of the tail)
+    and leaves."""
     theta, half_width, record = thresholds
     cout = state.shape[1] // live.size
     pixel = 0
@@ -282,15 +312,18 @@ def _update(
         while end < live.size and live[end] >= t:
             end += 1
         n0, n1 = pixel * cout, end * cout
-        _advance(state, z_now, z_old, refractory, potential, n0, n1, alpha)
-        _threshold(potential, n0, n1, theta, half_width, record, lists, counts)
+        _advance(state, z_now, z_old, potential, n0, n1, alpha, q_ref)
+        _threshold(potential, n0, n1, theta, half_width, record, lists, counts, base)
         for q in range(pixel, end):
             if live[q] == t:  # every input has left the kernel
                 state[:, q * cout : (q + 1) * cout] = 0.0
         pixel = end
 
 
-@numba.njit(cache=True, nogil=True)
+_TILE_NEURONS = 8192  # with their L + 4 state rows, a tile's state stays in a core's L2 cache
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def layer_forward(
     inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
     weight: np.ndarray,
@@ -300,10 +333,13 @@ def layer_forward(
     cols: tuple[np.ndarray, np.ndarray],
     alpha: np.ndarray,
     taps: int,
-    ref_taps: np.ndarray,
+    refractory: tuple[np.ndarray, int],
     thresholds: tuple[float, float, bool],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Run one layer over all steps; see the module docstring.
+
+    Neurons are independent given their inputs, so the layer runs in tiles of whole output rows,
+    each over all steps (its state stays in cache), and the tiles' lists are merged step by step.
 
     Args:
         inputs: offsets, flat indices, values of the input lists (CSR by step; values multiply W).
@@ -312,7 +348,8 @@ def layer_forward(
             height × width; rows, cols: :func:`fanout_tables`.
         alpha: [c, p, 1, −pᴸ, −L·pᴸ] of the PSP kernel ε[k] = c·k·pᵏ for k < L = ``taps``
             (steps), in the weight's dtype (:func:`alpha_constants`).
-        ref_taps: ν[0 … M−1] (ν[0] = 0), potential units, in the weight's dtype.
+        refractory: ([a, q, −a·q^(M−1)] in the weight's dtype, M) of the refractory kernel
+            ν[k] = a·q^(k−1), 1 ≤ k < M (potential units; :func:`refractory_constants`).
         thresholds: (θ, half-width of the surrogate's support, record): θ and the half-width as
             scalars of the weight's dtype, so that the comparisons are made in that precision as
             the batch path makes them; record: keep the pairs within the support (only a layer
@@ -321,32 +358,97 @@ def layer_forward(
     Returns:
         (spike offsets, spike indices, active offsets, active indices, active potentials u).
     """
+    out_width, cout = geometry[2], weight.shape[2]
+    tile_rows = max(1, _TILE_NEURONS // (out_width * cout))
+    tiles = []
+    for first_row in range(0, out_pixels // out_width, tile_rows):
+        last_row = min(first_row + tile_rows, out_pixels // out_width)
+        result = _tile_forward(inputs, weight, geometry, (first_row, last_row), rows, cols,
+                               alpha, taps, refractory, thresholds)  # fmt: skip
+        tiles.append(result)
+    return _merge(tiles, inputs[0].size - 1)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _merge(
+    tiles: list, steps: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The lists of the whole layer, step by step in tile order (so sorted by neuron)."""
+    offsets = np.zeros((2, steps + 1), np.int64)
+    for tile in tiles:
+        offsets[0] += tile[0]
+        offsets[1] += tile[2]
+    spikes = np.empty(offsets[0, -1], np.int32)
+    act_index = np.empty(offsets[1, -1], np.int32)
+    act_u = np.empty(offsets[1, -1], tiles[0][4].dtype)
+    fill = offsets[:, :-1].copy()
+    for t in range(steps):
+        for tile in tiles:
+            lo, hi = tile[0][t], tile[0][t + 1]
+            spikes[fill[0, t] : fill[0, t] + hi - lo] = tile[1][lo:hi]
+            fill[0, t] += hi - lo
+            lo, hi = tile[2][t], tile[2][t + 1]
+            act_index[fill[1, t] : fill[1, t] + hi - lo] = tile[3][lo:hi]
+            act_u[fill[1, t] : fill[1, t] + hi - lo] = tile[4][lo:hi]
+            fill[1, t] += hi - lo
+    return offsets[0], spikes, offsets[1], act_index, act_u
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _tile_forward(
+    inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
+    weight: np.ndarray,
+    geometry: np.ndarray,
+    tile: tuple[int, int],
+    rows: tuple[np.ndarray, np.ndarray],
+    cols: tuple[np.ndarray, np.ndarray],
+    alpha: np.ndarray,
+    taps: int,
+    refractory: tuple[np.ndarray, int],
+    thresholds: tuple[float, float, bool],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`layer_forward` for the output rows ``tile`` = (first, end): the same lists, for
+    those rows' neurons only (numbered in the layer)."""
     in_offsets, in_index, in_values = inputs
+    stride, in_width, out_width, kernel = geometry[0], geometry[1], geometry[2], geometry[3]
     steps = in_offsets.size - 1
-    neurons = out_pixels * weight.shape[2]
+    pixels = (tile[1] - tile[0]) * out_width
+    neurons = pixels * weight.shape[2]
     dtype = weight.dtype
-    state = np.zeros((2, neurons), dtype)  # p·A[t−1], p·(D[t−1] + A[t−1])
+    # The inputs that reach these rows: a range of flat indices, found by bisection each step.
+    row_size = in_width * weight.shape[1]
+    bounds = (tile[0] * stride * row_size, ((tile[1] - 1) * stride + kernel) * row_size)
+    ref_consts, ref_len = refractory
+    state = np.zeros((3, neurons), dtype)  # p·A[t−1], p·(D[t−1] + A[t−1]), R[t]
     # z[t] of the last L + 1 steps: z[t − L] leaves the PSP through the tail weights.
     synaptic = np.zeros((taps + 1, neurons), dtype)
-    ring = np.zeros((ref_taps.size, neurons), dtype)
     potential = np.empty(neurons, dtype)
-    live = np.full(out_pixels, -1, np.int64)
+    live = np.full(pixels, -1, np.int64)
     reach = np.empty((2, weight.shape[0]), np.int64)
     offsets = np.zeros((2, steps + 1), np.int64)  # spikes, active pairs
     lists = (np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, dtype))
     counts = np.zeros(2, np.int64)
+    base = tile[0] * out_width * weight.shape[2]
     for t in range(steps):
         z_now = synaptic[t % (taps + 1)]
-        _scatter(z_now, live, t + taps, in_index, in_values, in_offsets[t], in_offsets[t + 1],
-                 weight, geometry, rows, cols, reach)  # fmt: skip
+        step = in_index[in_offsets[t] : in_offsets[t + 1]]
+        start = in_offsets[t] + np.searchsorted(step, bounds[0])
+        stop = in_offsets[t] + np.searchsorted(step, bounds[1])
+        _scatter(z_now, live, t + taps, in_index, in_values, start, stop, weight, geometry, rows,
+                 cols, reach, tile[0] * out_width)  # fmt: skip
         # Room for every neuron of the step, so that the passes below need not check.
         active_room = counts[1] + neurons if thresholds[2] else 0
         lists = (_grow(lists[0], counts[0] + neurons), _grow(lists[1], active_room),
                  _grow(lists[2], active_room))  # fmt: skip
         first = counts[0]
-        _update(state, z_now, synaptic[(t + 1) % (taps + 1)], ring[t % ref_taps.size], potential,
-                live, t, alpha, thresholds, lists, counts)  # fmt: skip
-        _refract(lists[0][first : counts[0]], ring, ref_taps, live, t, weight.shape[2])
+        _update(state, z_now, synaptic[(t + 1) % (taps + 1)], potential, live, t, alpha,
+                ref_consts[1], thresholds, lists, counts, base)  # fmt: skip
+        old = max(t + 1 - ref_len, 0)  # the spikes of step t + 1 − M (none before step 0)
+        expiring = (
+            lists[0][offsets[0, old] : offsets[0, old + 1]] if t + 1 >= ref_len else lists[0][:0]
+        )
+        _refract(lists[0][first : counts[0]], expiring, state[2], ref_consts, live, t,
+                 t + ref_len - 1, base)  # fmt: skip
         offsets[:, t + 1] = counts
     spikes, act_index, act_u = lists
     return offsets[0], spikes[: counts[0]], offsets[1], act_index[: counts[1]], act_u[: counts[1]]
