@@ -33,7 +33,7 @@ from spikegyro.snn.sparse_backward import layer_backward
 from spikegyro.snn.sparse_forward import (
     alpha_constants,
     dense_to_lists,
-    fanout_tables,
+    fanout,
     layer_forward,
     refractory_constants,
 )
@@ -49,8 +49,7 @@ class _Layer:
     weight: np.ndarray  # (kh·kw, C_in, C_out), C-contiguous
     geometry: np.ndarray  # [stride, input width, output width, kernel width], px
     out_shape: tuple[int, int]
-    rows: tuple[np.ndarray, np.ndarray]
-    cols: tuple[np.ndarray, np.ndarray]
+    fan: tuple[np.ndarray, np.ndarray]  # what each input pixel reaches (fanout)
     alpha: np.ndarray
     taps: int
     refractory: tuple[np.ndarray, int]
@@ -78,8 +77,7 @@ class _Layer:
             weight=np.ascontiguousarray(weight.astype(dtype)),
             geometry=np.array([conv.stride, in_hw[1], out_hw[1], kernel], np.int64),
             out_shape=out_hw,
-            rows=fanout_tables(in_hw[0], out_hw[0], kernel, conv.stride),
-            cols=fanout_tables(in_hw[1], out_hw[1], kernel, conv.stride),
+            fan=fanout(in_hw, out_hw, kernel, conv.stride),
             alpha=alpha,
             taps=taps,
             refractory=refractory_constants(conv.ref_kernel.detach().double().cpu().numpy(), dtype),
@@ -97,7 +95,7 @@ class _Layer:
     def forward(self, inputs: Lists, record: bool) -> tuple[Lists, tuple[np.ndarray, ...]]:
         """(output spike lists, (active offsets, indices, potentials))."""
         spk_off, spk_idx, act_off, act_idx, act_u = layer_forward(
-            inputs, self.weight, self.geometry, self.out_pixels, self.rows, self.cols,
+            inputs, self.weight, self.geometry, self.out_pixels, self.fan,
             self.alpha, self.taps, self.refractory, (self.theta, self.half_width, record),
         )  # fmt: skip
         return (spk_off, spk_idx, np.ones(spk_idx.size, self.weight.dtype)), (
@@ -324,8 +322,7 @@ class _Plan:
             below = element.active[i - 1][:2] if i > self.first else (act_off, act_idx[:0])
             grad_w, grad_s = layer_backward(
                 element.active[i], grad_s, layer.surrogate, layer.alpha, layer.taps,
-                element.inputs[i], layer.weight, layer.geometry, layer.out_pixels, layer.rows,
-                layer.cols, below,
+                element.inputs[i], layer.weight, layer.fan, layer.out_pixels, below,
             )  # fmt: skip
             grads.append(grad_w)
             element.backward_s.append(time.thread_time() - start)

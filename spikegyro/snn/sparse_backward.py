@@ -29,7 +29,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from spikegyro.snn.sparse_forward import pixel_group, targets
+from spikegyro.snn.sparse_forward import pixel_group
 
 _FUTURE = np.iinfo(np.int64).max
 
@@ -106,10 +106,7 @@ def _weight_grad_at(
     live: np.ndarray,
     t: int,
     inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
-    geometry: np.ndarray,
-    rows: tuple[np.ndarray, np.ndarray],
-    cols: tuple[np.ndarray, np.ndarray],
-    reach: np.ndarray,
+    fan: tuple[np.ndarray, np.ndarray],
 ) -> None:
     """∂W[tap, c, :] += value·∂L/∂z[pixel, :] for the inputs of step t."""
     offsets, index, values = inputs
@@ -117,8 +114,8 @@ def _weight_grad_at(
     i, stop = offsets[t], offsets[t + 1]
     while i < stop:
         pixel_in, end = pixel_group(index, i, stop, cin)
-        for k in range(targets(pixel_in, geometry, rows, cols, reach)):
-            pixel, tap = reach[0, k], reach[1, k]
+        for k in range(fan[0][pixel_in], fan[0][pixel_in + 1]):
+            pixel, tap = fan[1][0, k], fan[1][1, k]
             if live[pixel] >= t:
                 continue  # ∂L/∂z is exactly 0 there
             grad = grad_z[pixel * cout : (pixel + 1) * cout]
@@ -138,10 +135,7 @@ def _input_grad_at(
     live: np.ndarray,
     t: int,
     below: tuple[np.ndarray, np.ndarray],
-    geometry: np.ndarray,
-    rows: tuple[np.ndarray, np.ndarray],
-    cols: tuple[np.ndarray, np.ndarray],
-    reach: np.ndarray,
+    fan: tuple[np.ndarray, np.ndarray],
 ) -> None:
     """out[j] = convᵀ(∂L/∂z[t])[index[j]] for the pairs of the layer below at step t."""
     offsets, index = below
@@ -150,8 +144,8 @@ def _input_grad_at(
     i, stop = offsets[t], offsets[t + 1]
     while i < stop:
         pixel_in, end = pixel_group(index, i, stop, cin)
-        for k in range(targets(pixel_in, geometry, rows, cols, reach)):
-            pixel, tap = reach[0, k], reach[1, k]
+        for k in range(fan[0][pixel_in], fan[0][pixel_in + 1]):
+            pixel, tap = fan[1][0, k], fan[1][1, k]
             if live[pixel] >= t:
                 continue  # ∂L/∂z is exactly 0 there
             grad = grad_z[pixel * cout : (pixel + 1) * cout]
@@ -173,10 +167,8 @@ def layer_backward(
     taps: int,
     inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
     weight: np.ndarray,
-    geometry: np.ndarray,
+    fan: tuple[np.ndarray, np.ndarray],
     out_pixels: int,
-    rows: tuple[np.ndarray, np.ndarray],
-    cols: tuple[np.ndarray, np.ndarray],
     below: tuple[np.ndarray, np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray]:
     """Weight gradient of one layer and ∂L/∂s of the layer below at its active pairs.
@@ -189,7 +181,7 @@ def layer_backward(
         alpha, taps: the PSP kernel ε[k] = c·k·pᵏ, k < L = ``taps`` steps
             (:func:`spikegyro.snn.sparse_forward.alpha_constants`).
         inputs: (offsets, flat indices, values) of this layer's input, as in the forward pass.
-        weight: (kh·kw, C_in, C_out); geometry, out_pixels, rows, cols: as in the forward pass.
+        weight: (kh·kw, C_in, C_out); fan, out_pixels: as in the forward pass.
         below: (offsets, flat indices) of the active pairs of the layer below (the input side);
             an empty index list when its gradient is not wanted.
 
@@ -204,7 +196,6 @@ def layer_backward(
     grad_below = np.zeros(below[1].size, weight.dtype)
     state = np.zeros((2, out_pixels * cout), weight.dtype)
     grad_z = np.zeros(out_pixels * cout, weight.dtype)
-    reach = np.empty((2, weight.shape[0]), np.int64)
     # Per pixel, the step at which its last δ leaves the kernel (the state is cleared there);
     # ∂L/∂z may be non-zero only at the steps above it, back to the last δ ("never": _FUTURE).
     live = np.full(out_pixels, _FUTURE, np.int64)
@@ -217,8 +208,7 @@ def layer_backward(
         _feed(state, act_index, delta, act_offsets[t], act_offsets[t + 1], head, live,
               t - taps)  # fmt: skip
         _adjoint_step(state, grad_z, live, t, alpha)
-        _weight_grad_at(grad_w, grad_z, live, t, inputs, geometry, rows, cols, reach)
+        _weight_grad_at(grad_w, grad_z, live, t, inputs, fan)
         if below[1].size:
-            _input_grad_at(grad_below, weight, grad_z, live, t, below, geometry, rows, cols,
-                           reach)  # fmt: skip
+            _input_grad_at(grad_below, weight, grad_z, live, t, below, fan)
     return grad_w, grad_below

@@ -31,7 +31,7 @@ cut above exp(−1/tau_rho) of the peak), so that a neuron at rest (u = 0) is ne
 Spike lists are CSR by step: ``offsets`` (T + 1,) int64 and flat neuron indices
 ``(y·W + x)·C + c`` (int32), channels-last like the weights ``(kh·kw, C_in, C_out)``. The
 geometry of a layer is the int64 array ``[stride, in_width, out_width, kernel_w]`` with the
-fan-out tables of :func:`fanout_tables` for its rows and columns.
+fan-out table of :func:`fanout` (the output pixels and taps each input pixel reaches).
 """
 
 from __future__ import annotations
@@ -89,17 +89,29 @@ def dense_to_lists(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def fanout_tables(
-    in_size: int, out_size: int, kernel: int, stride: int
+def fanout(
+    in_hw: tuple[int, int], out_hw: tuple[int, int], kernel: int, stride: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per input row (or column) i: the first and last output o with 0 <= i − o·stride < kernel
-    (no padding), clipped to the map; an empty range (first > last) when none."""
-    first = np.empty(in_size, np.int64)
-    last = np.empty(in_size, np.int64)
-    for i in range(in_size):
-        first[i] = max(0, (i - kernel + stride) // stride)
-        last[i] = min(out_size - 1, i // stride)
-    return first, last
+    """Where each input pixel of a conv (square kernel, no padding) projects: CSR offsets
+    (in_h·in_w + 1,) and pairs (2, n): the output pixel oy·out_w + ox and the kernel tap
+    ky·kernel + kx that connects them, for every input pixel iy·in_w + ix in order."""
+    counts = np.zeros(in_hw[0] * in_hw[1] + 1, np.int64)
+    pairs = np.empty((2, in_hw[0] * in_hw[1] * kernel * kernel), np.int64)
+    n = 0
+    for iy in range(in_hw[0]):
+        for ix in range(in_hw[1]):
+            # Outputs o with 0 <= i − o·stride < kernel, clipped to the map.
+            for oy in range(
+                max(0, (iy - kernel + stride) // stride), min(out_hw[0] - 1, iy // stride) + 1
+            ):
+                for ox in range(
+                    max(0, (ix - kernel + stride) // stride), min(out_hw[1] - 1, ix // stride) + 1
+                ):
+                    pairs[0, n] = oy * out_hw[1] + ox
+                    pairs[1, n] = (iy - oy * stride) * kernel + ix - ox * stride
+                    n += 1
+            counts[iy * in_hw[1] + ix + 1] = n
+    return counts, pairs[:, :n].copy()
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -107,32 +119,11 @@ def pixel_group(index: np.ndarray, start: int, stop: int, cin: int) -> tuple[int
     """(input pixel of ``index[start]``, end of the run of entries at that pixel within
     ``start:stop``): entries of one pixel are adjacent in a list sorted by flat index."""
     pixel = index[start] // cin
+    limit = (pixel + 1) * cin  # no division per entry
     end = start + 1
-    while end < stop and index[end] // cin == pixel:
+    while end < stop and index[end] < limit:
         end += 1
     return pixel, end
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def targets(
-    pixel_in: int,
-    geometry: np.ndarray,
-    rows: tuple[np.ndarray, np.ndarray],
-    cols: tuple[np.ndarray, np.ndarray],
-    out: np.ndarray,
-) -> int:
-    """Fill ``out[0, :n]`` with the output pixels an input pixel reaches and ``out[1, :n]`` with
-    the kernel tap ky·kw + kx that connects them; returns n."""
-    stride, in_width, out_width, kernel_w = geometry[0], geometry[1], geometry[2], geometry[3]
-    iy, ix = divmod(pixel_in, in_width)
-    n = 0
-    for oy in range(rows[0][iy], rows[1][iy] + 1):
-        ky = iy - oy * stride
-        for ox in range(cols[0][ix], cols[1][ix] + 1):
-            out[0, n] = oy * out_width + ox
-            out[1, n] = ky * kernel_w + ix - ox * stride
-            n += 1
-    return n
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -145,21 +136,19 @@ def _scatter(
     start: int,
     stop: int,
     weight: np.ndarray,
-    geometry: np.ndarray,
-    rows: tuple[np.ndarray, np.ndarray],
-    cols: tuple[np.ndarray, np.ndarray],
-    reach: np.ndarray,
+    fan: tuple[np.ndarray, np.ndarray],
     first_pixel: int,
 ) -> None:
     """Add ``value·W[tap, c, :]`` to the synaptic input map of every output pixel of the tile
     (``first_pixel`` on, as many as ``live`` holds) each input ``start:stop`` reaches (the
     convolution as a scatter from its non-zero inputs)."""
     cin, cout = weight.shape[1], weight.shape[2]
+    fan_offsets, fan_pairs = fan
     i = start
     while i < stop:
         pixel_in, end = pixel_group(index, i, stop, cin)
-        for k in range(targets(pixel_in, geometry, rows, cols, reach)):
-            pixel, tap = reach[0, k] - first_pixel, reach[1, k]
+        for k in range(fan_offsets[pixel_in], fan_offsets[pixel_in + 1]):
+            pixel, tap = fan_pairs[0, k] - first_pixel, fan_pairs[1, k]
             if pixel < 0 or pixel >= live.size:
                 continue  # another tile's
             # Slice views let LLVM vectorise the loop (no wrap-around checks on indices).
@@ -329,8 +318,7 @@ def layer_forward(
     weight: np.ndarray,
     geometry: np.ndarray,
     out_pixels: int,
-    rows: tuple[np.ndarray, np.ndarray],
-    cols: tuple[np.ndarray, np.ndarray],
+    fan: tuple[np.ndarray, np.ndarray],
     alpha: np.ndarray,
     taps: int,
     refractory: tuple[np.ndarray, int],
@@ -345,7 +333,7 @@ def layer_forward(
         inputs: offsets, flat indices, values of the input lists (CSR by step; values multiply W).
         weight: (kh·kw, C_in, C_out), the dtype of the computation (float32 or float64).
         geometry: [stride, input width, output width, kernel width] (px); out_pixels: output
-            height × width; rows, cols: :func:`fanout_tables`.
+            height × width; fan: :func:`fanout`.
         alpha: [c, p, 1, −pᴸ, −L·pᴸ] of the PSP kernel ε[k] = c·k·pᵏ for k < L = ``taps``
             (steps), in the weight's dtype (:func:`alpha_constants`).
         refractory: ([a, q, −a·q^(M−1)] in the weight's dtype, M) of the refractory kernel
@@ -363,7 +351,7 @@ def layer_forward(
     tiles = []
     for first_row in range(0, out_pixels // out_width, tile_rows):
         last_row = min(first_row + tile_rows, out_pixels // out_width)
-        result = _tile_forward(inputs, weight, geometry, (first_row, last_row), rows, cols,
+        result = _tile_forward(inputs, weight, geometry, (first_row, last_row), fan,
                                alpha, taps, refractory, thresholds)  # fmt: skip
         tiles.append(result)
     return _merge(tiles, inputs[0].size - 1)
@@ -400,8 +388,7 @@ def _tile_forward(
     weight: np.ndarray,
     geometry: np.ndarray,
     tile: tuple[int, int],
-    rows: tuple[np.ndarray, np.ndarray],
-    cols: tuple[np.ndarray, np.ndarray],
+    fan: tuple[np.ndarray, np.ndarray],
     alpha: np.ndarray,
     taps: int,
     refractory: tuple[np.ndarray, int],
@@ -424,7 +411,6 @@ def _tile_forward(
     synaptic = np.zeros((taps + 1, neurons), dtype)
     potential = np.empty(neurons, dtype)
     live = np.full(pixels, -1, np.int64)
-    reach = np.empty((2, weight.shape[0]), np.int64)
     offsets = np.zeros((2, steps + 1), np.int64)  # spikes, active pairs
     lists = (np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, dtype))
     counts = np.zeros(2, np.int64)
@@ -434,8 +420,8 @@ def _tile_forward(
         step = in_index[in_offsets[t] : in_offsets[t + 1]]
         start = in_offsets[t] + np.searchsorted(step, bounds[0])
         stop = in_offsets[t] + np.searchsorted(step, bounds[1])
-        _scatter(z_now, live, t + taps, in_index, in_values, start, stop, weight, geometry, rows,
-                 cols, reach, tile[0] * out_width)  # fmt: skip
+        _scatter(z_now, live, t + taps, in_index, in_values, start, stop, weight, fan,
+                 tile[0] * out_width)  # fmt: skip
         # Room for every neuron of the step, so that the passes below need not check.
         active_room = counts[1] + neurons if thresholds[2] else 0
         lists = (_grow(lists[0], counts[0] + neurons), _grow(lists[1], active_room),
