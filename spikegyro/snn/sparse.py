@@ -209,7 +209,8 @@ class EventDrivenStack:
         plan = _Plan.of(self.convs, self.pool, tuple(x.shape[2:4]), dtype, record)
         start = time.perf_counter()
         x_np = x.detach().cpu().numpy()
-        plan.elements = self._map(lambda b: plan.forward_element(x_np[b]), x.shape[0])
+        costs = np.count_nonzero(x_np.reshape(x_np.shape[0], -1), axis=1)
+        plan.elements = self._map(lambda b: plan.forward_element(x_np[b]), costs)
         self.timing = SparseTiming(forward_s=time.perf_counter() - start)
         self.timing.layer_forward_s = np.sum([e.forward_s for e in plan.elements], axis=0).tolist()
         self.timing.inputs = sum(int(e.inputs[0][1].size) for e in plan.elements)
@@ -225,8 +226,9 @@ class EventDrivenStack:
     def _backward(self, plan: _Plan, grad_pooled: torch.Tensor) -> list[torch.Tensor | None]:
         start = time.perf_counter()
         grad_np = grad_pooled.detach().cpu().numpy().astype(plan.dtype)
+        costs = [sum(a[1].size for a in e.active) for e in plan.elements]
         per_element = self._map(
-            lambda b: plan.backward_element(plan.elements[b], grad_np[b]), len(plan.elements)
+            lambda b: plan.backward_element(plan.elements[b], grad_np[b]), costs
         )
         self.timing.backward_s = time.perf_counter() - start
         per_layer = np.sum([e.backward_s[::-1] for e in plan.elements], axis=0)
@@ -240,11 +242,16 @@ class EventDrivenStack:
             grads.append(torch.from_numpy(shaped).permute(3, 2, 0, 1).contiguous().to(conv.weight))
         return grads
 
-    def _map(self, fn: Callable[[int], Any], count: int) -> list[Any]:
+    def _map(self, fn: Callable[[int], Any], costs: Sequence[int]) -> list[Any]:
+        """[fn(0), fn(1), …] for the batch elements, on ``threads`` threads, the costliest
+        (by ``costs``) started first so that no thread is left with a long one at the end."""
+        count = len(costs)
         if self.threads == 1 or count == 1:
             return [fn(b) for b in range(count)]
+        order = sorted(range(count), key=lambda b: -costs[b])
         with ThreadPoolExecutor(min(self.threads, count)) as workers:
-            return list(workers.map(fn, range(count)))
+            done = dict(zip(order, workers.map(fn, order), strict=True))
+        return [done[b] for b in range(count)]
 
 
 class _EventDrivenFunction(torch.autograd.Function):
