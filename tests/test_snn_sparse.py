@@ -16,6 +16,7 @@ from spikegyro.models.snn6 import READOUT, SNN6
 from spikegyro.snn.functional import fire, psp, surrogate_gradient, surrogate_half_width
 from spikegyro.snn.layers import GASP, SRMConv, SRMDense, SRMParams
 from spikegyro.snn.sparse import EventDrivenStack, _Plan
+from spikegyro.snn.sparse_forward import fanout
 from spikegyro.train.loss import angular_velocity_loss
 
 CUT = 0.05
@@ -190,6 +191,28 @@ def _dense_spikes(spikes: list[torch.Tensor]) -> list[set[int]]:
         rows = s.permute(0, 4, 2, 3, 1).reshape(n * t, -1).nonzero()  # channels-last neurons
         per_layer.append(set((rows[:, 0] * (1 << 24) + rows[:, 1]).tolist()))
     return per_layer
+
+
+@pytest.mark.parametrize(
+    ("in_hw", "kernel", "stride"), [((9, 7), 3, 2), ((8, 6), 3, 1), ((7, 11), 4, 3)]
+)
+def test_fanout_table_is_the_convolutions_connectivity(in_hw, kernel, stride):
+    """Every (output pixel, tap) pair an input pixel reaches, against torch's conv2d of a
+    one-hot input with a weight that numbers its taps 1 … k²."""
+    taps = torch.arange(1.0, kernel * kernel + 1).reshape(1, 1, kernel, kernel)
+    offsets, pairs = fanout(
+        in_hw,
+        tuple(F.conv2d(torch.zeros(1, 1, *in_hw), taps, stride=stride).shape[2:]),
+        kernel,
+        stride,
+    )
+    for pixel in range(in_hw[0] * in_hw[1]):
+        one_hot = torch.zeros(1, 1, in_hw[0] * in_hw[1])
+        one_hot[0, 0, pixel] = 1.0
+        out = F.conv2d(one_hot.reshape(1, 1, *in_hw), taps, stride=stride)[0, 0].flatten()
+        expected = {(int(o), int(out[o]) - 1) for o in out.nonzero().flatten()}
+        ours = {(int(o), int(t)) for o, t in pairs[:, offsets[pixel] : offsets[pixel + 1]].T}
+        assert ours == expected, pixel
 
 
 @pytest.mark.slow

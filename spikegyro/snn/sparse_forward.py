@@ -89,6 +89,13 @@ def dense_to_lists(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _reach(i: int, out_size: int, kernel: int, stride: int) -> tuple[int, int]:
+    """The first and last output o with 0 <= i − o·stride < kernel, clipped to the map (an
+    empty range when first > last)."""
+    return max(0, (i - kernel + stride) // stride), min(out_size - 1, i // stride)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def fanout(
     in_hw: tuple[int, int], out_hw: tuple[int, int], kernel: int, stride: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -99,14 +106,11 @@ def fanout(
     pairs = np.empty((2, in_hw[0] * in_hw[1] * kernel * kernel), np.int64)
     n = 0
     for iy in range(in_hw[0]):
+        first_y, last_y = _reach(iy, out_hw[0], kernel, stride)
         for ix in range(in_hw[1]):
-            # Outputs o with 0 <= i − o·stride < kernel, clipped to the map.
-            for oy in range(
-                max(0, (iy - kernel + stride) // stride), min(out_hw[0] - 1, iy // stride) + 1
-            ):
-                for ox in range(
-                    max(0, (ix - kernel + stride) // stride), min(out_hw[1] - 1, ix // stride) + 1
-                ):
+            first_x, last_x = _reach(ix, out_hw[1], kernel, stride)
+            for oy in range(first_y, last_y + 1):
+                for ox in range(first_x, last_x + 1):
                     pairs[0, n] = oy * out_hw[1] + ox
                     pairs[1, n] = (iy - oy * stride) * kernel + ix - ox * stride
                     n += 1
