@@ -98,10 +98,12 @@ CASES: dict[str, str] = {
     "evaluate-out-is-file": "evaluate --data {data} --out {existing.csv}",
     "evaluate-zero-limit": "evaluate --data {data} --out {out}/e --limit 0",
     "evaluate-bad-model": "evaluate --data {data} --out {out}/e --model bogus",
+    "evaluate-decreasing-bins": "evaluate --data {data} --out {out}/e --speed-bins 0,50,20",
     # evaluate-real
     "real-out-is-file": "evaluate-real {good.h5} --out {existing.csv}",
     "real-zero-intrinsics": "evaluate-real {good.h5} --out {out}/r --intrinsics 0 0 120 90",
     "real-bad-offset": "evaluate-real {good.h5} --out {out}/r --gyro-offset soon",
+    "real-bins-not-from-zero": "evaluate-real {good.h5} --out {out}/r --speed-bins 10,50",
     "real-checkpoint-folder": "evaluate-real {good.h5} --out {out}/r --checkpoint {dir}",
     "real-negative-warmup": "evaluate-real {good.h5} --out {out}/r --warmup-ms -1",
     "real-bad-gyro": "evaluate-real {good.h5} --out {out}/r --gyro {bad_gyro.txt}",

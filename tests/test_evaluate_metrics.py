@@ -149,6 +149,22 @@ def test_per_bin_metrics_counts_medians_and_empty_bins():
     assert bins.empty_bins(per_bin) == ["[200, 300)", "[300, 400)", "[400, 500)", "[500, inf)"]
 
 
+def test_speed_bin_sets_and_user_edges():
+    assert bins.parse_speed_bins("paper") == bins.SPEED_BIN_EDGES_DEG_S
+    fine = bins.parse_speed_bins("fine")
+    assert fine[:5] == (0, 10, 25, 50, 100) and fine[-1] == math.inf
+    assert set(bins.SPEED_BIN_EDGES_DEG_S) <= set(fine)  # the paper's bins stay edges
+    assert bins.parse_speed_bins("0,20,60") == (0, 20, 60, math.inf)
+    assert bins.parse_speed_bins("0,20,inf") == (0, 20, math.inf)
+    # Every pair lands in a bin: a fine table counts what the paper's does.
+    speeds = np.array([3, 12, 30, 70, 140, 700.0])
+    assert (bins.speed_bin_index(speeds, fine) >= 0).all()
+    np.testing.assert_array_equal(bins.speed_bin_index(speeds, fine), [0, 1, 2, 3, 4, 8])
+    for bad in ("0,50,20", "10,50", "0", "0,a", "slow", ""):
+        with pytest.raises(InputError, match="--speed-bins"):
+            bins.parse_speed_bins(bad)
+
+
 def _sequence(path, omega_rows):
     omega = np.asarray(omega_rows, dtype=np.float64)
     ev = EventArray.from_arrays([1], [2], [0], [1], 8, 6)

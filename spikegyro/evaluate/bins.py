@@ -1,12 +1,16 @@
-"""Per-speed analysis: the metrics within six bins of true angular speed (the paper's Figs. 4, 5).
+"""Per-speed analysis: the metrics within bins of true angular speed (the paper's Figs. 4, 5).
 
 Each evaluated (window, step) pair falls in the bin ``[lo, hi)`` holding its true speed
 ||omega_hat|| in deg/s. The edges are fixed, not data-driven, so runs on different data or models
-stay comparable: :data:`SPEED_BIN_EDGES_DEG_S` = 0, 100, 200, 300, 400, 500, inf deg/s; the last
-bin is open, so no pair is ever dropped. For the simulator's default rotations (per-axis rates
-Laplace-distributed with scale 107 deg/s, mean speed about 225 deg/s) the bins hold about 16, 35,
-26, 13, 6 and 4 % of the pairs (Monte Carlo, 10^6 draws); for Gaussian per-axis rates of mean
-speed 220 deg/s, 9, 36, 36, 15, 3 and 0.4 %.
+stay comparable: :data:`SPEED_BIN_EDGES_DEG_S` = 0, 100, 200, 300, 400, 500, inf deg/s (the
+paper's); the last bin is open, so no pair is ever dropped. :data:`FINE_SPEED_BIN_EDGES_DEG_S`
+splits the first of them where handheld cameras and robots turn (5-100 deg/s):
+``--speed-bins fine`` in ``evaluate`` and ``evaluate-real``.
+
+For the simulator's default rotations (per-axis rates Laplace-distributed with scale 107 deg/s,
+mean speed about 225 deg/s) the paper's bins hold about 16, 35, 26, 13, 6 and 4 % of the pairs
+(Monte Carlo, 10^6 draws); for Gaussian per-axis rates of mean speed 220 deg/s, 9, 36, 36, 15, 3
+and 0.4 %.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from spikegyro.errors import InputError
 from spikegyro.evaluate.metrics import (
     EVAL_START_STEP,
     MIN_SPEED_DEG_S,
@@ -26,6 +31,28 @@ from spikegyro.evaluate.metrics import (
 )
 
 SPEED_BIN_EDGES_DEG_S: tuple[float, ...] = (0.0, 100.0, 200.0, 300.0, 400.0, 500.0, math.inf)
+FINE_SPEED_BIN_EDGES_DEG_S: tuple[float, ...] = (
+    *(0.0, 10.0, 25.0, 50.0),
+    *SPEED_BIN_EDGES_DEG_S[1:],
+)
+SPEED_BIN_SETS = {"paper": SPEED_BIN_EDGES_DEG_S, "fine": FINE_SPEED_BIN_EDGES_DEG_S}
+
+
+def parse_speed_bins(text: str) -> tuple[float, ...]:
+    """Bin edges (deg/s) from ``paper``, ``fine`` or increasing edges ``0,E1,E2,…`` (an open
+    last bin from the last edge on is added, so that no pair is dropped); InputError otherwise."""
+    if text in SPEED_BIN_SETS:
+        return SPEED_BIN_SETS[text]
+    try:
+        edges = [float(v) for v in text.split(",")]
+    except ValueError:
+        edges = []
+    if len(edges) < 2 or edges[0] != 0 or any(b <= a for a, b in itertools.pairwise(edges)):
+        raise InputError(
+            f"--speed-bins {text!r}: give paper, fine or increasing edges in deg/s from 0, "
+            "e.g. 0,10,25,50,100"
+        )
+    return (*edges, *(() if math.isinf(edges[-1]) else (math.inf,)))
 
 
 def bin_labels(edges: Sequence[float] = SPEED_BIN_EDGES_DEG_S) -> list[str]:

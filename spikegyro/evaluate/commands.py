@@ -16,6 +16,7 @@ from rich.console import Console
 
 from spikegyro import options
 from spikegyro.checks import sensor_option
+from spikegyro.evaluate.bins import parse_speed_bins
 from spikegyro.evaluate.compare import compare_runs, console_summary, table_one
 from spikegyro.evaluate.real import (
     DEFAULT_WINDOW_MS,
@@ -25,6 +26,11 @@ from spikegyro.evaluate.real import (
 )
 from spikegyro.evaluate.simulated import run_evaluation
 from spikegyro.stream.predict import WARMUP_STEPS
+
+SPEED_BINS_HELP = (
+    "Speed bins of the per-bin metrics, deg/s: paper (0, 100, …, 500, inf), fine (0, 10, 25, 50, "
+    "100, …: splits the slow motion of handheld cameras and robots) or edges '0,E1,E2,…'."
+)
 
 
 def evaluate(
@@ -47,6 +53,7 @@ def evaluate(
     example: list[int] = typer.Option(
         None, "--example", help="Window index for a qualitative figure (repeatable)."
     ),
+    speed_bins: str = typer.Option("paper", "--speed-bins", help=SPEED_BINS_HELP),
 ) -> None:
     """Score a model and the mean predictor: metrics.json, predictions, figures and a report."""
     run_evaluation(
@@ -60,6 +67,7 @@ def evaluate(
         device=device,
         limit=limit,
         examples=example or None,
+        speed_bins=parse_speed_bins(speed_bins),
     )
 
 
@@ -122,6 +130,7 @@ def evaluate_real(
     mean_data: Path = typer.Option(
         None, "--mean-data", help="Dataset whose training mean the mean predictor answers (else 0)."
     ),
+    speed_bins: str = typer.Option("paper", "--speed-bins", help=SPEED_BINS_HELP),
     width: int = options.WIDTH,
     height: int = options.HEIGHT,
 ) -> None:
@@ -136,6 +145,7 @@ def evaluate_real(
         warmup_ms=warmup_ms,
         gyro_offset=gyro_offset,
         offset=replace(OffsetConfig(), max_offset_ms=max_offset_ms),
+        speed_bins=parse_speed_bins(speed_bins),
     )
     run_real_evaluation(
         recording,

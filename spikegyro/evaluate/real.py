@@ -48,7 +48,12 @@ from spikegyro.baselines.mean import training_mean_omega
 from spikegyro.checks import check_input, check_output_dir
 from spikegyro.errors import InputError
 from spikegyro.evaluate import metrics
-from spikegyro.evaluate.bins import bins_json, empty_bins, per_bin_metrics
+from spikegyro.evaluate.bins import (
+    SPEED_BIN_EDGES_DEG_S,
+    bins_json,
+    empty_bins,
+    per_bin_metrics,
+)
 from spikegyro.evaluate.console import print_summary, write_json
 from spikegyro.evaluate.offset import event_sample_times, fit_time_offset
 from spikegyro.evaluate.real_report import write_figures, write_real_report, write_tables
@@ -105,6 +110,7 @@ class RealEvalConfig:
     warmup_ms: int = WARMUP_STEPS
     gyro_offset: str = "0"
     offset: OffsetConfig = OffsetConfig()
+    speed_bins: tuple[float, ...] = SPEED_BIN_EDGES_DEG_S  # deg/s
 
 
 def parse_gyro_offset(text: str) -> float | None:
@@ -207,7 +213,12 @@ def _check_overlap(
 
 
 def _method_results(
-    name: str, method: str, pred: np.ndarray, gt: np.ndarray, scored: np.ndarray
+    name: str,
+    method: str,
+    pred: np.ndarray,
+    gt: np.ndarray,
+    scored: np.ndarray,
+    edges: tuple[float, ...],
 ) -> dict[str, Any]:
     """Per-ms metrics over the scored steps (one pseudo-window, every step evaluated)."""
     p, g = pred[scored][None], gt[scored][None]
@@ -215,7 +226,7 @@ def _method_results(
         "name": name,
         "method": method,
         "metrics": metrics.summary(p, g, start=0),
-        "per_bin": per_bin_metrics(p, g, start=0),
+        "per_bin": per_bin_metrics(p, g, edges, start=0),
     }
 
 
@@ -537,7 +548,9 @@ def _score_models(
     models: dict[str, dict[str, Any]] = {}
     window_pred: dict[str, np.ndarray] = {}
     for name, (method, series) in predicted.per_ms.items():
-        models[name] = _method_results(name, method, series, ref.gt, ref.scored)
+        models[name] = _method_results(
+            name, method, series, ref.gt, ref.scored, plan.config.speed_bins
+        )
         window_pred[name] = bin_means(series, plan.t0, plan.w_starts, plan.w_ends)
     window_pred["CMax (window)"] = predicted.cmax_window
     models["CMax (window)"] = {"name": "CMax (window)", "method": "cmax_window", "metrics": None}
@@ -611,7 +624,7 @@ def score_real(plan: RealPlan, predicted: RealPredictions, ref: GyroReference) -
         "format": REAL_METRICS_FORMAT,
         "data": _data_json(plan, ref),
         "gyro": _gyro_json(plan, ref),
-        "bins": bins_json(),
+        "bins": bins_json(plan.config.speed_bins),
         "models": models,
         "windows_omega_rad_s": {
             "gyro": ref.w_gt.tolist(),

@@ -34,7 +34,12 @@ from spikegyro.baselines.mean import mean_predictions, training_mean_omega
 from spikegyro.checks import check_device, check_output_dir
 from spikegyro.errors import InputError
 from spikegyro.evaluate import figures, metrics
-from spikegyro.evaluate.bins import bins_json, empty_bins, per_bin_metrics
+from spikegyro.evaluate.bins import (
+    SPEED_BIN_EDGES_DEG_S,
+    bins_json,
+    empty_bins,
+    per_bin_metrics,
+)
 from spikegyro.evaluate.compare import METRICS_FORMAT
 from spikegyro.evaluate.console import print_summary, write_json
 from spikegyro.evaluate.kinds import kind_table, per_kind_metrics, window_scene_kinds
@@ -129,11 +134,13 @@ def _subject(
     return (net, payload), spec, name, info
 
 
-def _model_results(pred: np.ndarray, gt: np.ndarray, kinds: list[str]) -> dict[str, Any]:
+def _model_results(
+    pred: np.ndarray, gt: np.ndarray, kinds: list[str], edges: tuple[float, ...]
+) -> dict[str, Any]:
     return {
         "metrics": metrics.summary(pred, gt),
         "window_metrics": metrics.window_metrics(pred, gt),
-        "per_bin": per_bin_metrics(pred, gt),
+        "per_bin": per_bin_metrics(pred, gt, edges),
         "per_scene_kind": per_kind_metrics(pred, gt, kinds),
     }
 
@@ -250,6 +257,7 @@ class EvalOptions:
     examples: list[int] | None = None
     num_examples: int = DEFAULT_EXAMPLES
     spike_windows: int = 16
+    speed_bins: tuple[float, ...] = SPEED_BIN_EDGES_DEG_S
 
 
 @dataclass
@@ -402,8 +410,8 @@ def _data_summary(plan: EvalPlan, window_ms: int) -> dict[str, Any]:
 def score_evaluation(plan: EvalPlan, predicted: EvalPredictions) -> dict[str, Any]:
     """The metrics of the model and of the mean predictor: the dict ``metrics.json`` holds."""
     pred, gt, warnings = predicted.pred, predicted.gt, plan.warnings
-    kinds = window_scene_kinds(plan.windows)
-    model_res = {"name": plan.name, **plan.info, **_model_results(pred, gt, kinds)}
+    kinds, edges = window_scene_kinds(plan.windows), plan.options.speed_bins
+    model_res = {"name": plan.name, **plan.info, **_model_results(pred, gt, kinds, edges)}
     model_res["nonfinite_predictions"] = predicted.nonfinite
     if predicted.spikes is not None:
         model_res["spikes"] = predicted.spikes
@@ -412,7 +420,7 @@ def score_evaluation(plan: EvalPlan, predicted: EvalPredictions) -> dict[str, An
         "method": "mean",
         "source": predicted.mean_source,
         "omega_rad_s": predicted.mean_omega.tolist(),
-        **_model_results(mean_predictions(predicted.mean_omega, *gt.shape[:2]), gt, kinds),
+        **_model_results(mean_predictions(predicted.mean_omega, *gt.shape[:2]), gt, kinds, edges),
     }
     if empty := empty_bins(model_res["per_bin"]):
         warnings.append(f"no evaluated step in speed bin(s) {', '.join(empty)} deg/s; left empty.")
@@ -421,7 +429,7 @@ def score_evaluation(plan: EvalPlan, predicted: EvalPredictions) -> dict[str, An
     return {
         "format": METRICS_FORMAT,
         "data": _data_summary(plan, int(gt.shape[1])),
-        "bins": bins_json(),
+        "bins": bins_json(edges),
         "model": model_res,
         "mean": mean_res,
         "warnings": warnings,
@@ -457,6 +465,7 @@ def run_evaluation(
     examples: list[int] | None = None,
     num_examples: int = DEFAULT_EXAMPLES,
     spike_windows: int = 16,
+    speed_bins: tuple[float, ...] = SPEED_BIN_EDGES_DEG_S,
     console: Console | None = None,
 ) -> dict[str, Any]:
     """Evaluate a checkpoint (or ``model="cmax"``) and the mean predictor on ``data_dir/split``.
@@ -475,6 +484,7 @@ def run_evaluation(
         examples: window indices for the qualitative figures; default ``num_examples`` windows
             spread from slow to fast.
         spike_windows: windows (the first ones with events) used for the SNN spike statistics.
+        speed_bins: edges of the speed bins, deg/s (:mod:`spikegyro.evaluate.bins`).
 
     Returns:
         The dict written to ``metrics.json``.
@@ -493,6 +503,7 @@ def run_evaluation(
         examples,
         num_examples,
         spike_windows,
+        tuple(speed_bins),
     )
     plan = plan_evaluation(options)
     predicted = predict_evaluation(plan, console)
