@@ -1,4 +1,4 @@
-"""Validation error against wall time of training runs, one curve per run, in one figure.
+"""Validation error against wall time and against steps of training runs, one curve per run.
 
 Reads each run directory's ``log.csv`` (``spikegyro train``) and plots ``val_mean_err_deg``
 against ``elapsed_s``; used for the side-by-side fine-tuning of SNN-6 with the dense path and
@@ -39,18 +39,21 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("finetune_curves.png"))
     parser.add_argument("--title", default="SNN-6 fine-tuning on the CPU")
     args = parser.parse_args()
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig, (ax, by_step) = plt.subplots(1, 2, figsize=(11.0, 4.0), sharey=True)
     for run in args.runs:
         minutes, errors, steps = validation_curve(run)
-        ax.plot(minutes, errors, marker="o", label=f"{run.name} ({steps[-1]} steps)")
+        ax.plot(minutes, errors, marker="o", ms=3, label=f"{run.name} ({steps[-1]} steps)")
+        by_step.plot(steps, errors, marker="o", ms=3, label=run.name)
         print(f"{run.name}: " + ", ".join(
             f"{s} steps {m:.1f} min {e:.1f} deg/s" for m, e, s in zip(minutes, errors, steps,
                                                                       strict=True)))  # fmt: skip
     ax.set_xlabel("wall time (min)")
     ax.set_ylabel("validation mean error (deg/s)")
-    ax.set_title(args.title)
-    ax.grid(alpha=0.3)
-    ax.legend()
+    by_step.set_xlabel("training step (batch of 8)")
+    for axes in (ax, by_step):
+        axes.grid(alpha=0.3)
+        axes.legend()
+    fig.suptitle(args.title)
     fig.tight_layout()
     fig.savefig(args.out, dpi=120)
     print(f"wrote {args.out}")
