@@ -313,7 +313,7 @@ def _update(
         pixel = end
 
 
-_TILE_NEURONS = 8192  # with their L + 4 state rows, a tile's state stays in a core's L2 cache
+_TILE_NEURONS = 8192  # × (L + 1 synaptic maps, 3 poles, u): ≈ 1 MB, a core's L2 cache
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
