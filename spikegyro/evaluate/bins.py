@@ -31,10 +31,7 @@ from spikegyro.evaluate.metrics import (
 )
 
 SPEED_BIN_EDGES_DEG_S: tuple[float, ...] = (0.0, 100.0, 200.0, 300.0, 400.0, 500.0, math.inf)
-FINE_SPEED_BIN_EDGES_DEG_S: tuple[float, ...] = (
-    *(0.0, 10.0, 25.0, 50.0),
-    *SPEED_BIN_EDGES_DEG_S[1:],
-)
+FINE_SPEED_BIN_EDGES_DEG_S: tuple[float, ...] = (0.0, 10.0, 25.0, 50.0, *SPEED_BIN_EDGES_DEG_S[1:])
 SPEED_BIN_SETS = {"paper": SPEED_BIN_EDGES_DEG_S, "fine": FINE_SPEED_BIN_EDGES_DEG_S}
 
 

@@ -34,7 +34,7 @@ from spikegyro.snn.sparse_forward import pixel_group
 _FUTURE = np.iinfo(np.int64).max
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _deltas(act_u: np.ndarray, grad_s: np.ndarray, surrogate: np.ndarray) -> np.ndarray:
     """δ = ρ(u)·∂L/∂s at the recorded pairs; surrogate = [θ, scale_rho/θ, −1/(tau_rho·θ)]."""
     theta, height, slope = surrogate[0], surrogate[1], surrogate[2]
@@ -44,7 +44,7 @@ def _deltas(act_u: np.ndarray, grad_s: np.ndarray, surrogate: np.ndarray) -> np.
     return out
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _feed(
     state: np.ndarray,
     index: np.ndarray,
@@ -65,7 +65,7 @@ def _feed(
             live[index[j] // cout] = until
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _adjoint_step(
     state: np.ndarray, grad_z: np.ndarray, live: np.ndarray, t: int, alpha: np.ndarray
 ) -> None:
@@ -99,7 +99,7 @@ def _adjoint_step(
         pixel = end
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _weight_grad_at(
     grad_w: np.ndarray,
     grad_z: np.ndarray,
@@ -127,7 +127,7 @@ def _weight_grad_at(
         i = end
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _input_grad_at(
     out: np.ndarray,
     weight: np.ndarray,
@@ -158,7 +158,7 @@ def _input_grad_at(
         i = end
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def layer_backward(
     active: tuple[np.ndarray, np.ndarray, np.ndarray],
     grad_s: np.ndarray,

@@ -44,7 +44,7 @@ from spikegyro.kernel_fit import fit_alpha_kernel, fit_exp_kernel
 _MIN_CAPACITY = 1024
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def _grow(array: np.ndarray, size: int) -> np.ndarray:
     """``array`` if it holds at least ``size`` entries, else a copy at least twice as large."""
     if size <= array.size:
@@ -54,7 +54,7 @@ def _grow(array: np.ndarray, size: int) -> np.ndarray:
     return bigger
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def dense_to_lists(
     x: np.ndarray, threshold: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -88,14 +88,14 @@ def dense_to_lists(
     return offsets, index, values
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def _reach(i: int, out_size: int, kernel: int, stride: int) -> tuple[int, int]:
     """The first and last output o with 0 <= i − o·stride < kernel, clipped to the map (an
     empty range when first > last)."""
     return max(0, (i - kernel + stride) // stride), min(out_size - 1, i // stride)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def fanout(
     in_hw: tuple[int, int], out_hw: tuple[int, int], kernel: int, stride: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -118,7 +118,7 @@ def fanout(
     return counts, pairs[:, :n].copy()
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def pixel_group(index: np.ndarray, start: int, stop: int, cin: int) -> tuple[int, int]:
     """(input pixel of ``index[start]``, end of the run of entries at that pixel within
     ``start:stop``): entries of one pixel are adjacent in a list sorted by flat index."""
@@ -130,7 +130,7 @@ def pixel_group(index: np.ndarray, start: int, stop: int, cin: int) -> tuple[int
     return pixel, end
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def _scatter(
     synaptic: np.ndarray,
     live: np.ndarray,
@@ -187,7 +187,7 @@ def refractory_constants(kernel: np.ndarray, dtype: type) -> tuple[np.ndarray, i
     return np.array([a, q, -a * q ** (size - 1)], dtype=dtype), size
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def _advance(
     state: np.ndarray,
     z_now: np.ndarray,
@@ -215,7 +215,7 @@ def _advance(
         old[o] = 0.0
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def _threshold(
     potential: np.ndarray,
     n0: int,
@@ -250,7 +250,7 @@ def _threshold(
     counts[0], counts[1] = n_spikes, n_act
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def _refract(
     spikes: np.ndarray,
     expiring: np.ndarray,
@@ -276,7 +276,7 @@ def _refract(
         live[pixel] = max(live[pixel], last)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def _update(
     state: np.ndarray,
     z_now: np.ndarray,
@@ -316,7 +316,7 @@ def _update(
 _TILE_NEURONS = 8192  # × (L + 1 synaptic maps, 3 poles, u): ≈ 1 MB, a core's L2 cache
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def layer_forward(
     inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
     weight: np.ndarray,
@@ -361,7 +361,7 @@ def layer_forward(
     return _merge(tiles, inputs[0].size - 1)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def _merge(
     tiles: list, steps: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -386,7 +386,7 @@ def _merge(
     return offsets[0], spikes, offsets[1], act_index, act_u
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True)
 def _tile_forward(
     inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
     weight: np.ndarray,
@@ -433,10 +433,8 @@ def _tile_forward(
         first = counts[0]
         _update(state, z_now, synaptic[(t + 1) % (taps + 1)], potential, live, t, alpha,
                 ref_consts[1], thresholds, lists, counts, base)  # fmt: skip
-        old = max(t + 1 - ref_len, 0)  # the spikes of step t + 1 − M (none before step 0)
-        expiring = (
-            lists[0][offsets[0, old] : offsets[0, old + 1]] if t + 1 >= ref_len else lists[0][:0]
-        )
+        old = t + 1 - ref_len  # the spikes of step t + 1 − M leave the refractory kernel
+        expiring = lists[0][offsets[0, old] : offsets[0, old + 1]] if old >= 0 else lists[0][:0]
         _refract(lists[0][first : counts[0]], expiring, state[2], ref_consts, live, t,
                  t + ref_len - 1, base)  # fmt: skip
         offsets[:, t + 1] = counts

@@ -205,7 +205,7 @@ def validate(
 
 
 def resolve_compute(config: TrainConfig, ctx: distributed.DistContext) -> str:
-    """"sparse" or "dense": how this run computes its training steps (see ``TrainConfig``)."""
+    """ "sparse" or "dense": how this run computes its training steps (see ``TrainConfig``)."""
     if config.input != "spikes":
         return "dense"
     if config.compute == "sparse" and ctx.device.type != "cpu":
