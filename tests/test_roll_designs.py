@@ -198,3 +198,16 @@ def test_stream_engine_hands_the_variants_to_the_batched_path(tmp_path, capsys) 
         input_spec=spec,
     )
     assert isinstance(load_engine(plain)[0], StreamingSNN)  # longer taus stream exactly
+
+
+def test_log_polar_share_splits_conv1_between_the_two_grids() -> None:
+    shipped = read_checkpoint(PRETRAINED_SNN6)["state_dict"]
+    lp = build_model("snn6", log_polar=True, log_polar_share=0.25)
+    state = adapt_state(shipped, lp)
+    cart, polar = state["conv1.weight"][:, :2], state["conv1.weight"][:, 2:]
+    torch.testing.assert_close(cart, 0.75 * shipped["conv1.weight"])
+    torch.testing.assert_close(polar, 0.25 * shipped["conv1.weight"])
+    # An input seen identically on both grids drives conv1 exactly as the source network.
+    torch.testing.assert_close(cart + polar, shipped["conv1.weight"])
+    with pytest.raises(InputError):
+        build_model("snn6", log_polar=True, log_polar_share=1.5)

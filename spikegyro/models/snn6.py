@@ -99,6 +99,10 @@ class SNN6(nn.Module):
         log_polar_centre: (cx, cy) of the log-polar grid in input pixels; None: (W/2, H/2), the
             simulator's principal point (exact at scale 1, a quarter pixel off at scale 0.5).
         log_polar_r_min: inner radius of the log-polar grid, input pixels.
+        log_polar_share: used only when :func:`adapt_state` fits a Cartesian network to this
+            one (``train --init``): the share of conv1's weights that starts on the log-polar
+            channels (Cartesian weights times 1 − share, their copy times share). 0 keeps the
+            source network's output exactly but leaves the branch to grow from zero.
         tau_scale: factor on τs and τr of every spiking layer (a longer memory; 1 = the paper).
         readout_tau: τs of the readout's PSP, ms (8 = the paper).
     """
@@ -111,6 +115,7 @@ class SNN6(nn.Module):
         log_polar: bool = False,
         log_polar_centre: tuple[float, float] | None = None,
         log_polar_r_min: float = LOG_POLAR_R_MIN,
+        log_polar_share: float = 0.0,
         tau_scale: float = 1.0,
         readout_tau: float = READOUT.tau_s,
     ) -> None:
@@ -119,11 +124,14 @@ class SNN6(nn.Module):
             raise InputError(
                 f"SNN-6 with tau_scale {tau_scale}, readout_tau {readout_tau}: both must be > 0."
             )
+        if not 0.0 <= log_polar_share <= 1.0:
+            raise InputError(f"SNN-6 with log_polar_share {log_polar_share}: use 0 … 1.")
         self.in_channels = in_channels
         self.readout_grid = (int(readout_grid[0]), int(readout_grid[1]))
         self.log_polar = bool(log_polar)
         self.log_polar_centre = None if log_polar_centre is None else tuple(log_polar_centre)
         self.log_polar_r_min = float(log_polar_r_min)
+        self.log_polar_share = float(log_polar_share)
         self._pixel_maps: dict[tuple[int, int], torch.Tensor] = {}
         # The log-polar copy of the input enters conv1 as extra channels.
         channels = in_channels * (2 if self.log_polar else 1)
@@ -294,8 +302,9 @@ def adapt_state(state: dict[str, torch.Tensor], model: SNN6) -> dict[str, torch.
     source network computes: the start point of ``train --init`` across variants.
 
     - GASP -> grid readout: :func:`grid_state_from_global` (exact for a grid dividing layer 5).
-    - More conv1 input channels (the log-polar copy): the extra channels get zero weights, so
-      the network's output is unchanged until training moves them.
+    - More conv1 input channels (the log-polar copy): the extra channels get the source's conv1
+      weights times ``model.log_polar_share`` and the source's own channels keep 1 − share of
+      theirs; at share 0 (the default) the output is unchanged until training moves them.
     - Other time constants (``tau_scale``, ``readout_tau``): the model keeps its own kernels and
       each layer's weights are multiplied by (source kernel area / new kernel area), which keeps
       the potential a steady input rate builds (the response to a single spike changes).
@@ -306,8 +315,11 @@ def adapt_state(state: dict[str, torch.Tensor], model: SNN6) -> dict[str, torch.
     weight = state["conv1.weight"]
     extra = model.conv1.weight.shape[1] - weight.shape[1]
     if extra > 0:
-        zeros = weight.new_zeros(weight.shape[0], extra, *weight.shape[2:])
-        state["conv1.weight"] = torch.cat([weight, zeros], dim=1)
+        share = model.log_polar_share if extra == weight.shape[1] else 0.0
+        copy = weight.new_zeros(weight.shape[0], extra, *weight.shape[2:])
+        if share:
+            copy = weight * share
+        state["conv1.weight"] = torch.cat([weight * (1.0 - share), copy], dim=1)
     layers = [(f"conv{i + 1}", conv) for i, conv in enumerate(model.convs)] + [("fc", model.fc)]
     for name, layer in layers:
         own = layer.srm_kernel

@@ -209,7 +209,9 @@ class EventDrivenStack:
         plan = _Plan.of(self.convs, self.pool, tuple(x.shape[2:4]), dtype, record)
         start = time.perf_counter()
         x_np = x.detach().cpu().numpy()
-        costs = np.count_nonzero(x_np.reshape(x_np.shape[0], -1), axis=1)
+        # The input's sum (its event count) orders the elements by cost: a torch sum on all
+        # threads costs a fifth of counting the non-zeros, and the order only balances the load.
+        costs = x.detach().flatten(1).sum(1).tolist()
         plan.elements = self._map(lambda b: plan.forward_element(x_np[b]), costs)
         self.timing = SparseTiming(forward_s=time.perf_counter() - start)
         self.timing.layer_forward_s = np.sum([e.forward_s for e in plan.elements], axis=0).tolist()
