@@ -72,7 +72,7 @@ class _LazyGroup(TyperGroup):
             command = typer.main.get_group(target)
             command.name = cmd_name
             return command
-        single = typer.Typer()
+        single = typer.Typer(add_completion=False)  # completion belongs to the root command
         single.command(cmd_name)(target)
         return typer.main.get_command(single)
 

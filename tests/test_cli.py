@@ -55,3 +55,20 @@ def test_numba_wrapped_ctrl_c_counts_as_an_interrupt() -> None:
     assert is_interrupt(wrapped)
     assert not is_interrupt(SystemError("a real bug"))
     assert not is_interrupt(ValueError("bad value"))
+
+
+def test_only_the_root_command_could_offer_completion() -> None:
+    """Shell completion is installed for `spikegyro` as a whole; a sub-command offering
+    --install-completion in its help would install it under the wrong name."""
+    import typer
+
+    from spikegyro.cli import _COMMANDS, app
+
+    group = typer.main.get_command(app)
+    ctx = group.make_context("spikegyro", ["--help"], resilient_parsing=True)
+    for name in _COMMANDS:
+        command = group.get_command(ctx, name)
+        commands = getattr(command, "commands", {name: command})
+        for sub in [command, *commands.values()]:
+            options = {o for p in sub.params for o in getattr(p, "opts", [])}
+            assert "--install-completion" not in options, name
