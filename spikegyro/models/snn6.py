@@ -314,12 +314,12 @@ def adapt_state(state: dict[str, torch.Tensor], model: SNN6) -> dict[str, torch.
         state = grid_state_from_global(state, model.readout_grid)
     weight = state["conv1.weight"]
     extra = model.conv1.weight.shape[1] - weight.shape[1]
-    if extra > 0:
-        share = model.log_polar_share if extra == weight.shape[1] else 0.0
-        copy = weight.new_zeros(weight.shape[0], extra, *weight.shape[2:])
-        if share:
-            copy = weight * share
-        state["conv1.weight"] = torch.cat([weight * (1.0 - share), copy], dim=1)
+    if extra == weight.shape[1]:  # the log-polar copy of every input channel
+        share = model.log_polar_share
+        state["conv1.weight"] = torch.cat([weight * (1.0 - share), weight * share], dim=1)
+    elif extra > 0:
+        zeros = weight.new_zeros(weight.shape[0], extra, *weight.shape[2:])
+        state["conv1.weight"] = torch.cat([weight, zeros], dim=1)
     layers = [(f"conv{i + 1}", conv) for i, conv in enumerate(model.convs)] + [("fc", model.fc)]
     for name, layer in layers:
         own = layer.srm_kernel
