@@ -8,8 +8,9 @@ initial weights:
 - ``reference``: spikegyro's torch code (``SPIKEGYRO_TRITON=0``);
 - ``fused``: the Triton spike kernels (:mod:`spikegyro.snn.triton_kernels`);
 - ``slayer``: slayerPytorch's CUDA SNN-6, the implementation the paper trained with, built from a
-  checkout of its repository (``--slayer DIR``): the bench copies it to ``--slayer-build``, replaces three C++ APIs that PyTorch removed, compiles
-  ``slayerKernels.cu`` with ``torch.utils.cpp_extension.load`` and loads the same weights;
+  checkout of its repository (``--slayer DIR``): the bench copies it to ``--slayer-build``,
+  replaces three C++ APIs that PyTorch removed, compiles ``slayerKernels.cu`` with
+  ``torch.utils.cpp_extension.load`` and loads the same weights;
 - optional: ``--compile`` (torch.compile of the fused model), ``--cuda-graph`` (the whole fused
   step captured in one CUDA graph), ``--tf32`` (fused with TF32 matmuls and convolutions) and
   ``--strict-fp32`` (fused with TF32 off everywhere; by default PyTorch lets cuDNN use TF32).
