@@ -5,9 +5,13 @@ weights, surrogate cut 0.05 on both paths so that their gradients agree) on real
 half simulated with the ideal sensor, half with the ``davis240c`` preset (seeded, the same every
 run). Both paths run in one process, their steps interleaved (so both see the same background
 load), on 1 and 2 threads; the time is the median of ``--repeats`` steps after one warm-up step
-each, divided by the batch, as wall time and as the process's CPU time. Peak memory: one step of
-each path in its own subprocess (peak resident set, VmHWM reset just before the step; growth =
-peak minus the level before it).
+each, divided by the batch, as wall time and as the process's CPU time, user and system apart
+(system time is mostly the kernel mapping and zeroing the pages of fresh allocations: the dense
+path allocates its activations anew every step, and what that costs varies with the host's
+memory state, so the user-time ratio is printed too). Torch runs each path as ``spikegyro
+train`` does: on ``--threads`` threads for the dense path, on one beside the engine's threads
+for the sparse path. Peak memory: one step of each path in its own subprocess (peak resident
+set, VmHWM reset just before the step; growth = peak minus the level before it).
 
 Gradients: on the same batch, the largest relative norm ‖g_sparse − g_dense‖/‖g_dense‖ over the
 parameter tensors (float32), and the spikes that differ between the two forward passes (a
@@ -78,24 +82,35 @@ def model(compute: str, threads: int) -> SNN6:
 def make_step(compute: str, threads: int, x, y) -> tuple[Callable[[], None], SNN6]:
     net = model(compute, threads)
     optimizer = torch.optim.Adam(net.parameters(), lr=1e-5)
-    return lambda: train_step(net, optimizer, x, y, START), net
+    # As `spikegyro train` runs each path: torch's own threads are the engine's for the dense
+    # path; with the event engine torch keeps one (its ops are small).
+    torch_threads = 1 if compute == "sparse" else threads
+
+    def step() -> None:
+        torch.set_num_threads(torch_threads)
+        train_step(net, optimizer, x, y, START)
+
+    return step, net
 
 
-def step_times(x, y, threads: int, repeats: int) -> dict[str, tuple[float, float]]:
-    """Median (wall, CPU) seconds per window of each path, steps interleaved, one warm-up step
-    each. CPU time (all threads of the process) does not count waiting for a busy core."""
-    torch.set_num_threads(threads)
+def step_times(x, y, threads: int, repeats: int) -> dict[str, tuple[float, float, float]]:
+    """Median (wall, user CPU, system CPU) seconds per window of each path, steps interleaved,
+    one warm-up step each. CPU time (all threads of the process) does not count waiting for a
+    busy core; system time is mostly the kernel mapping and zeroing freshly allocated pages."""
     steps = {c: make_step(c, threads, x, y)[0] for c in ("dense", "sparse")}
     for step in steps.values():
         step()
-    times: dict[str, list[tuple[float, float]]] = {c: [] for c in steps}
+    times: dict[str, list[tuple[float, float, float]]] = {c: [] for c in steps}
     for _ in range(repeats):
         for compute, step in steps.items():
-            start, cpu = time.perf_counter(), time.process_time()
+            start, cpu = time.perf_counter(), os.times()
             step()
-            times[compute].append((time.perf_counter() - start, time.process_time() - cpu))
+            end = os.times()
+            times[compute].append(
+                (time.perf_counter() - start, end.user - cpu.user, end.system - cpu.system)
+            )
     return {
-        c: tuple(statistics.median(v[k] for v in t) / BATCH for k in (0, 1))
+        c: tuple(statistics.median(v[k] for v in t) / BATCH for k in (0, 1, 2))
         for c, t in times.items()
     }
 
@@ -168,8 +183,9 @@ def main() -> None:
             command = [sys.executable, __file__, "--memory-of", f"{compute}:{threads}"]
             out = subprocess.run(command, capture_output=True, text=True, check=True).stdout
             memory = json.loads(out.strip().splitlines()[-1])
-            wall, cpu = seconds[compute]
-            rows.append({"compute": compute, "threads": threads, "s": wall, "cpu_s": cpu, **memory})
+            wall, user, system = seconds[compute]
+            rows.append({"compute": compute, "threads": threads, "s": wall, "user_s": user,
+                         "system_s": system, "cpu_s": user + system, **memory})  # fmt: skip
             print(f"  {compute:6s} {threads} thr {wall:.3f} s/window", file=sys.stderr)
     check = gradient_check(x, y)
     print(
@@ -177,15 +193,17 @@ def main() -> None:
         f"(4 ideal + 4 davis240c windows, input density {density:.2%}), surrogate cut {CUT}, "
         f"torch {torch.__version__}, median of {args.repeats} interleaved steps"
     )
-    print("| threads | path | s per window | dense / this | CPU s per window | dense / this "
-          "(CPU) | peak RSS (MiB) | growth (MiB) |")  # fmt: skip
-    print("|---:|---|---:|---:|---:|---:|---:|---:|")
+    print("| threads | path | s per window | dense / this | CPU s per window (user + system) "
+          "| dense / this (CPU) | dense / this (user CPU) | peak RSS (MiB) "
+          "| growth (MiB) |")  # fmt: skip
+    print("|---:|---|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         dense = next(o for o in rows if o["threads"] == r["threads"] and o["compute"] == "dense")
         print(
             f"| {r['threads']} | {r['compute']} | {r['s']:.3f} | {dense['s'] / r['s']:.2f}x | "
-            f"{r['cpu_s']:.3f} | {dense['cpu_s'] / r['cpu_s']:.2f}x | {r['peak_mib']:.0f} | "
-            f"{r['growth_mib']:.0f} |"
+            f"{r['cpu_s']:.3f} ({r['user_s']:.3f} + {r['system_s']:.3f}) | "
+            f"{dense['cpu_s'] / r['cpu_s']:.2f}x | {dense['user_s'] / r['user_s']:.2f}x | "
+            f"{r['peak_mib']:.0f} | {r['growth_mib']:.0f} |"
         )
     rel = check["relative"]
     print("gradient relative norm difference per tensor: "
@@ -211,6 +229,9 @@ def main() -> None:
             "dense_cpu_s_per_window": two["dense"]["cpu_s"],
             "sparse_cpu_s_per_window": two["sparse"]["cpu_s"],
             "cpu_speedup": two["dense"]["cpu_s"] / two["sparse"]["cpu_s"],
+            "dense_system_s_per_window": two["dense"]["system_s"],
+            "sparse_system_s_per_window": two["sparse"]["system_s"],
+            "user_cpu_speedup": two["dense"]["user_s"] / two["sparse"]["user_s"],
             "threads": max(args.threads),
             "max_grad_rel_diff": max(rel.values()),
             "grad_rel_diff": rel,

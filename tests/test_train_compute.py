@@ -7,7 +7,9 @@ import torch
 from test_train_loop import dataset, state_of, tiny_config  # noqa: F401 (fixture)
 
 from spikegyro.errors import InputError
-from spikegyro.train.loop import train
+from spikegyro.models.snn6 import SNN6
+from spikegyro.train.distributed import DistContext
+from spikegyro.train.loop import configure_compute, train
 
 
 def test_sparse_and_dense_runs_share_checkpoints_and_freeze(dataset, tmp_path):  # noqa: F811
@@ -42,3 +44,23 @@ def test_bad_compute_options_are_one_line_errors(dataset, tmp_path, overrides, m
     with pytest.raises(InputError, match=message) as error:
         tiny_config(dataset, tmp_path, **overrides)
     assert "\n" not in str(error.value)
+
+
+@pytest.mark.parametrize("compute", ["sparse", "dense"])
+def test_the_engine_threads_own_the_cores(dataset, tmp_path, compute):  # noqa: F811
+    """With the event engine, its threads run the batch and torch keeps one thread (its
+    OpenMP workers would spin on the engine's cores); the dense path keeps torch's threads."""
+    config = tiny_config(dataset, tmp_path, compute=compute, threads=2)
+    model = SNN6()
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        assert configure_compute(model, config, DistContext()) == compute
+        engine = model.event_engine
+        if compute == "sparse":
+            assert engine is not None and engine.threads == 2
+            assert torch.get_num_threads() == 1
+        else:
+            assert engine is None and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)

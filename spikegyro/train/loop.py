@@ -230,6 +230,10 @@ def configure_compute(model: nn.Module, config: TrainConfig, ctx: distributed.Di
         model.set_surrogate_cut(config.resolved_cut(compute))
         threads = config.threads or torch.get_num_threads()
         model.use_event_engine(threads if compute == "sparse" else None)
+        if compute == "sparse":
+            # The engine's threads own the cores. Torch's own ops (readout, loss, Adam) are
+            # small, and after each parallel one its OpenMP workers spin on those cores.
+            torch.set_num_threads(1)
     return compute
 
 
