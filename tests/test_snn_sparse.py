@@ -16,7 +16,7 @@ from spikegyro.models.snn6 import READOUT, SNN6
 from spikegyro.snn.functional import fire, psp, surrogate_gradient, surrogate_half_width
 from spikegyro.snn.layers import GASP, SRMConv, SRMDense, SRMParams
 from spikegyro.snn.sparse import EventDrivenStack, _Plan
-from spikegyro.snn.sparse_forward import fanout
+from spikegyro.snn.sparse_forward import _threshold, fanout
 from spikegyro.train.loss import angular_velocity_loss
 
 CUT = 0.05
@@ -213,6 +213,29 @@ def test_fanout_table_is_the_convolutions_connectivity(in_hw, kernel, stride):
         expected = {(int(o), int(out[o]) - 1) for o in out.nonzero().flatten()}
         ours = {(int(o), int(t)) for o, t in pairs[:, offsets[pixel] : offsets[pixel + 1]].T}
         assert ours == expected, pixel
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize(("n0", "n1"), [(0, 0), (3, 4), (5, 68), (0, 64), (7, 135), (1, 200)])
+def test_thresholding_lists_what_a_numpy_comparison_finds(dtype, n0, n1):
+    """Spikes (u >= θ) and pairs within the support (|u − θ| <= half-width, with their u) of a
+    run of neurons, against numpy's comparisons; runs shorter and longer than a 64-neuron mask,
+    values exactly at θ and at the support's edges."""
+    theta, half = dtype(0.25), dtype(0.125)
+    rng = np.random.default_rng(n1)
+    u = rng.uniform(0.0, 0.5, 256).astype(dtype)
+    u[::7], u[3::11], u[5::13] = theta, theta - half, theta + half
+    base, size = 1000, 256 + 8
+    lists = (np.full(size, -1, np.int32), np.full(size, -1, np.int32), np.zeros(size, dtype))
+    counts = np.array([2, 3])  # appended after what the lists already hold
+    _threshold(u, n0, n1, theta, half, True, lists, counts, base)
+    run = np.arange(n0, n1)
+    spikes = run[u[n0:n1] >= theta]
+    near = run[np.abs(u[n0:n1] - theta) <= half]
+    assert counts.tolist() == [2 + spikes.size, 3 + near.size]
+    np.testing.assert_array_equal(lists[0][2 : counts[0]], base + spikes)
+    np.testing.assert_array_equal(lists[1][3 : counts[1]], base + near)
+    np.testing.assert_array_equal(lists[2][3 : counts[1]], u[near])
 
 
 @pytest.mark.slow
