@@ -252,7 +252,9 @@ def _threshold(
                 near |= np.uint64(abs(chunk[k] - theta) <= half_width) << np.uint64(k)
             n_act = _append_bits(near, base + n, act_index, n_act, chunk, act_u)
         n += _CHUNK
-    for m in range(n, n1):  # the last < 64 neurons of the run
+    # The last < 64 neurons of the run, tested one by one: a mask of constant width lets the
+    # loops above vectorise (one loop over both cases measured 2-7 % slower).
+    for m in range(n, n1):
         u = potential[m]
         if u >= theta:
             spikes[n_spikes] = base + m
@@ -262,7 +264,6 @@ def _threshold(
             act_u[n_act] = u
             n_act += 1
     counts[0], counts[1] = n_spikes, n_act
-
 
 
 @numba.njit(cache=True, nogil=True)
