@@ -84,6 +84,30 @@ def test_grid_readout_and_event_counts_match_autograd():
         assert relative(sparse[name], grad) < 1e-9, name
 
 
+def test_reused_buffers_carry_nothing_between_steps_and_passes_in_flight_keep_their_own():
+    """The engine writes its lists into buffers kept from step to step: a step repeated after
+    another gives the same gradients to the bit, and two forward passes before their backward
+    passes give the sum of their separate gradients."""
+    model = exact_snn6()
+    model.use_event_engine(2)
+    first = random_window((2, 2, 72, 96, 30), 0.05)
+    second = random_window((3, 2, 72, 96, 30), 0.08)
+    y = torch.randn(3, 3, 30, dtype=torch.float64, generator=torch.Generator().manual_seed(6))
+    _, alone = gradients(model, first, y[:2], start=10)
+    _, other = gradients(model, second, y, start=10)
+    _, again = gradients(model, first, y[:2], start=10)
+    for name, grad in alone.items():
+        assert torch.equal(again[name], grad), name
+    model.zero_grad(set_to_none=True)
+    both = angular_velocity_loss(model(first), y[:2], 10) + angular_velocity_loss(
+        model(second), y, 10
+    )
+    both.backward()
+    for name, param in model.named_parameters():
+        summed = alone[name] + other[name]
+        assert relative(param.grad, summed) < 1e-12, name
+
+
 def test_the_engine_refuses_an_unbounded_surrogate():
     model = SNN6()
     model.use_event_engine(1)

@@ -31,6 +31,7 @@ from spikegyro.snn.functional import surrogate_half_width
 from spikegyro.snn.layers import SRMConv
 from spikegyro.snn.sparse_backward import layer_backward
 from spikegyro.snn.sparse_forward import (
+    Buffers,
     alpha_constants,
     dense_to_lists,
     fanout,
@@ -40,6 +41,9 @@ from spikegyro.snn.sparse_forward import (
 
 Lists = tuple[np.ndarray, np.ndarray, np.ndarray]
 """(offsets (T + 1,), flat indices, values): one step-major event list."""
+
+Kept = dict[str, tuple[np.ndarray, ...]]
+"""Named buffers that a kernel writes into, kept between calls (see :class:`_Storage`)."""
 
 
 @dataclass(frozen=True)
@@ -92,17 +96,51 @@ class _Layer:
     def out_pixels(self) -> int:
         return self.out_shape[0] * self.out_shape[1]
 
-    def forward(self, inputs: Lists, record: bool) -> tuple[Lists, tuple[np.ndarray, ...]]:
-        """(output spike lists, (active offsets, indices, potentials))."""
-        spk_off, spk_idx, act_off, act_idx, act_u = layer_forward(
+    def forward(
+        self, inputs: Lists, record: bool, storage: _Storage, key: str
+    ) -> tuple[Lists, tuple[np.ndarray, ...]]:
+        """(output spike lists, (active offsets, indices, potentials)), written into the
+        buffers ``storage.kept[key]`` (through ``storage.scratch``), which keep them."""
+        empty = _empty_buffers(self.weight.dtype)
+        buffers = (storage.scratch.get("lists", empty), storage.kept.get(key, empty))
+        lists, (storage.scratch["lists"], storage.kept[key]) = layer_forward(
             inputs, self.weight, self.geometry, self.out_pixels, self.fan,
             self.alpha, self.taps, self.refractory, (self.theta, self.half_width, record),
+            buffers,
         )  # fmt: skip
-        return (spk_off, spk_idx, np.ones(spk_idx.size, self.weight.dtype)), (
+        spk_off, spk_idx, act_off, act_idx, act_u = lists
+        return (spk_off, spk_idx, _ones(spk_idx.size, self.weight.dtype)), (
             act_off,
             act_idx,
             act_u,
         )
+
+
+@dataclass
+class _Storage:
+    """Where the pass of one batch element writes its lists: buffers kept from step to step,
+    since writing fresh memory costs page faults, a large share of the pass. ``kept`` holds what
+    the backward pass reads (one per batch element), ``scratch`` what is used up within the
+    element's forward or backward pass (one per thread)."""
+
+    kept: Kept
+    scratch: Kept
+
+
+def _empty_buffers(dtype: np.dtype) -> Buffers:
+    return np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, dtype)
+
+
+_ONES: dict[np.dtype, np.ndarray] = {}
+
+
+def _ones(size: int, dtype: np.dtype) -> np.ndarray:
+    """``size`` ones, the values of a spike list: views of one array that is never written."""
+    ones = _ONES.get(dtype)
+    if ones is None or ones.size < size:
+        ones = np.ones(max(size, 2 * (0 if ones is None else ones.size), 1 << 16), dtype)
+        _ONES[dtype] = ones
+    return ones[:size]
 
 
 @dataclass
@@ -195,6 +233,15 @@ class EventDrivenStack:
         self.pool = pool
         self.threads = max(1, int(threads))
         self.timing = SparseTiming()
+        # Buffers of the last steps, reused (_Storage): per batch element, what a pass keeps
+        # until its backward pass, and per thread, its scratch. A pass takes them from here and
+        # gives them back when it is done with them (list.pop and append are atomic).
+        self._kept: list[Kept] = []
+        self._scratch: list[Kept] = []
+
+    def __getstate__(self) -> dict[str, Any]:
+        """A copy (deepcopy, pickle) starts without the buffers."""
+        return {**self.__dict__, "_kept": [], "_scratch": []}
 
     def pooled(self, x: torch.Tensor) -> torch.Tensor:
         """Pooled last-layer spikes (N, features, T) of input (N, C, H, W, T) (time last, 1 ms)."""
@@ -212,7 +259,13 @@ class EventDrivenStack:
         # The input's sum (its event count) orders the elements by cost: a torch sum on all
         # threads costs a fifth of counting the non-zeros, and the order only balances the load.
         costs = x.detach().flatten(1).sum(1).tolist()
-        plan.elements = self._map(lambda b: plan.forward_element(x_np[b]), costs)
+        plan.kept = [self._kept.pop() if self._kept else {} for _ in costs]
+        plan.elements = self._map(
+            lambda b: self._with_scratch(
+                lambda scratch: plan.forward_element(x_np[b], _Storage(plan.kept[b], scratch))
+            ),
+            costs,
+        )
         self.timing = SparseTiming(forward_s=time.perf_counter() - start)
         self.timing.layer_forward_s = np.sum([e.forward_s for e in plan.elements], axis=0).tolist()
         self.timing.inputs = sum(int(e.inputs[0][1].size) for e in plan.elements)
@@ -223,16 +276,39 @@ class EventDrivenStack:
             sum(int(e.active[i][1].size) for e in plan.elements) for i in range(len(self.convs))
         ]
         pooled = np.stack([e.pooled for e in plan.elements])
+        if not record:
+            self._give_back(plan)
         return torch.from_numpy(pooled).to(device=x.device, dtype=weight.dtype), plan
+
+    def _with_scratch(self, fn: Callable[[Kept], Any]) -> Any:
+        """fn(scratch buffers no other thread uses meanwhile)."""
+        try:
+            scratch = self._scratch.pop()
+        except IndexError:
+            scratch = {}
+        try:
+            return fn(scratch)
+        finally:
+            self._scratch.append(scratch)
+
+    def _give_back(self, plan: _Plan) -> None:
+        """Return the plan's buffers for reuse; its lists are not to be read after this."""
+        self._kept.extend(plan.kept)
+        del self._kept[len(plan.kept) :]  # two passes in flight: keep one batch's worth
+        plan.kept = []
 
     def _backward(self, plan: _Plan, grad_pooled: torch.Tensor) -> list[torch.Tensor | None]:
         start = time.perf_counter()
         grad_np = grad_pooled.detach().cpu().numpy().astype(plan.dtype)
         costs = [sum(a[1].size for a in e.active) for e in plan.elements]
         per_element = self._map(
-            lambda b: plan.backward_element(plan.elements[b], grad_np[b]), costs
+            lambda b: self._with_scratch(
+                lambda scratch: plan.backward_element(plan.elements[b], grad_np[b], scratch)
+            ),
+            costs,
         )
         self.timing.backward_s = time.perf_counter() - start
+        self._give_back(plan)
         per_layer = np.sum([e.backward_s[::-1] for e in plan.elements], axis=0)
         self.timing.layer_backward_s = [0.0] * plan.first + per_layer.tolist()
         grads: list[torch.Tensor | None] = [None] * plan.first
@@ -282,6 +358,7 @@ class _Plan:
     pooling: np.ndarray
     dtype: type
     elements: list[_Element] = field(default_factory=list)
+    kept: list[Kept] = field(default_factory=list)  # per element
 
     @classmethod
     def of(
@@ -305,33 +382,44 @@ class _Plan:
     def channels(self) -> int:
         return self.layers[-1].weight.shape[2]
 
-    def forward_element(self, x: np.ndarray) -> _Element:
-        """Forward pass of one (C, H, W, T) input; keeps each layer's input and active pairs."""
+    def forward_element(self, x: np.ndarray, storage: _Storage) -> _Element:
+        """Forward pass of one (C, H, W, T) input; keeps each layer's input and active pairs (in
+        ``storage``)."""
         offsets, index, values = dense_to_lists(np.ascontiguousarray(x))
         spikes: Lists = (offsets, index, values.astype(self.dtype))
         element = _Element()
         for i, layer in enumerate(self.layers):
             element.inputs.append(spikes)
             start = time.thread_time()
-            spikes, active = layer.forward(spikes, record=i >= self.first)
+            spikes, active = layer.forward(spikes, i >= self.first, storage, f"layer{i}")
             element.forward_s.append(time.thread_time() - start)
             element.active.append(active)
         element.pooled = _pool_forward(spikes[0], spikes[1], self.pooling, self.channels)
         return element
 
-    def backward_element(self, element: _Element, grad_pooled: np.ndarray) -> list[np.ndarray]:
-        """Weight gradients (kh·kw, C_in, C_out) of layers ``first`` … last for one element."""
+    def backward_element(
+        self,
+        element: _Element,
+        grad_pooled: np.ndarray,
+        scratch: Kept,
+    ) -> list[np.ndarray]:
+        """Weight gradients (kh·kw, C_in, C_out) of layers ``first`` … last for one element;
+        ``scratch``: buffers of the thread (:attr:`_Storage.scratch`), reused."""
         act_off, act_idx, _ = element.active[-1]
         grad_s = _pool_backward(act_off, act_idx, grad_pooled, self.pooling, self.channels)
         grads = []
+        empty = np.empty(0, self.dtype)
         for i in range(len(self.layers) - 1, self.first - 1, -1):
             layer = self.layers[i]
             start = time.thread_time()
             act_off, act_idx, _ = element.active[i]
             below = element.active[i - 1][:2] if i > self.first else (act_off, act_idx[:0])
-            grad_w, grad_s = layer_backward(
+            # ∂L/∂s of the layer below is read by the next call while it writes its own.
+            key = f"backward{i % 2}"
+            (grad_w, grad_s), scratch[key] = layer_backward(
                 element.active[i], grad_s, layer.surrogate, layer.alpha, layer.taps,
                 element.inputs[i], layer.weight, layer.fan, layer.out_pixels, below,
+                scratch.get(key, (empty, empty)),
             )  # fmt: skip
             grads.append(grad_w)
             element.backward_s.append(time.thread_time() - start)

@@ -29,16 +29,18 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from spikegyro.snn.sparse_forward import pixel_group
+from spikegyro.snn.sparse_forward import fit, pixel_group
 
 _FUTURE = np.iinfo(np.int64).max
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _deltas(act_u: np.ndarray, grad_s: np.ndarray, surrogate: np.ndarray) -> np.ndarray:
-    """δ = ρ(u)·∂L/∂s at the recorded pairs; surrogate = [θ, scale_rho/θ, −1/(tau_rho·θ)]."""
+def _deltas(
+    act_u: np.ndarray, grad_s: np.ndarray, surrogate: np.ndarray, out: np.ndarray
+) -> np.ndarray:
+    """δ = ρ(u)·∂L/∂s at the recorded pairs, into ``out``; surrogate = [θ, scale_rho/θ,
+    −1/(tau_rho·θ)]."""
     theta, height, slope = surrogate[0], surrogate[1], surrogate[2]
-    out = np.empty_like(act_u)
     for j in range(act_u.size):
         out[j] = height * np.exp(slope * abs(act_u[j] - theta)) * grad_s[j]
     return out
@@ -170,7 +172,8 @@ def layer_backward(
     fan: tuple[np.ndarray, np.ndarray],
     out_pixels: int,
     below: tuple[np.ndarray, np.ndarray],
-) -> tuple[np.ndarray, np.ndarray]:
+    storage: tuple[np.ndarray, np.ndarray],
+) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
     """Weight gradient of one layer and ∂L/∂s of the layer below at its active pairs.
 
     Args:
@@ -184,16 +187,21 @@ def layer_backward(
         weight: (kh·kw, C_in, C_out); fan, out_pixels: as in the forward pass.
         below: (offsets, flat indices) of the active pairs of the layer below (the input side);
             an empty index list when its gradient is not wanted.
+        storage: buffers in the weight's dtype that the caller keeps between calls, for δ and
+            for ∂L/∂s_in (as in the forward pass: fresh memory costs page faults).
 
     Returns:
-        (∂L/∂W (kh·kw, C_in, C_out), ∂L/∂s_in at the pairs of ``below``).
+        ((∂L/∂W (kh·kw, C_in, C_out), ∂L/∂s_in at the pairs of ``below``: a view of the second
+        buffer), the buffers to keep (larger copies where they were too small)).
     """
     act_offsets, act_index, act_u = active
     steps = act_offsets.size - 1
     cout = weight.shape[2]
-    delta = _deltas(act_u, grad_s, surrogate)
+    storage = (fit(storage[0], act_u.size), fit(storage[1], below[1].size))
+    delta = _deltas(act_u, grad_s, surrogate, storage[0])
     grad_w = np.zeros_like(weight)
-    grad_below = np.zeros(below[1].size, weight.dtype)
+    grad_below = storage[1][: below[1].size]
+    grad_below[:] = 0.0
     state = np.zeros((2, out_pixels * cout), weight.dtype)
     grad_z = np.zeros(out_pixels * cout, weight.dtype)
     # Per pixel, the step at which its last δ leaves the kernel (the state is cleared there);
@@ -211,4 +219,4 @@ def layer_backward(
         _weight_grad_at(grad_w, grad_z, live, t, inputs, fan)
         if below[1].size:
             _input_grad_at(grad_below, weight, grad_z, live, t, below, fan)
-    return grad_w, grad_below
+    return (grad_w, grad_below), storage

@@ -56,6 +56,15 @@ def _grow(array: np.ndarray, size: int) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
+def fit(array: np.ndarray, size: int) -> np.ndarray:
+    """``array`` if it holds at least ``size`` entries, else a new one (contents not kept) with
+    a quarter to spare: a buffer kept from step to step settles at the largest size it met."""
+    if size <= array.size:
+        return array
+    return np.empty(max(size + size // 4, _MIN_CAPACITY), array.dtype)
+
+
+@numba.njit(cache=True, nogil=True)
 def dense_to_lists(
     x: np.ndarray, threshold: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -352,6 +361,15 @@ def _update(
 
 _TILE_NEURONS = 8192  # × (L + 1 synaptic maps, 3 poles, u): ≈ 1 MB, a core's L2 cache
 
+Buffers = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""Storage for (spike indices int32, active indices int32, active potentials) that a caller
+keeps between calls: the layer writes into it and returns it, as a larger copy when it was too
+small."""
+
+LayerLists = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""What a layer's pass gives: spike offsets, spike indices, active offsets, active indices,
+active potentials u."""
+
 
 @numba.njit(cache=True, nogil=True)
 def layer_forward(
@@ -364,11 +382,13 @@ def layer_forward(
     taps: int,
     refractory: tuple[np.ndarray, int],
     thresholds: tuple[float, float, bool],
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    storage: tuple[Buffers, Buffers],
+) -> tuple[LayerLists, tuple[Buffers, Buffers]]:
     """Run one layer over all steps; see the module docstring.
 
     Neurons are independent given their inputs, so the layer runs in tiles of whole output rows,
-    each over all steps (its state stays in cache), and the tiles' lists are merged step by step.
+    each over all steps (its state stays in cache), one after the other into one scratch list,
+    and the tiles' lists are merged step by step.
 
     Args:
         inputs: offsets, flat indices, values of the input lists (CSR by step; values multiply W).
@@ -383,44 +403,55 @@ def layer_forward(
             scalars of the weight's dtype, so that the comparisons are made in that precision as
             the batch path makes them; record: keep the pairs within the support (only a layer
             that back-propagates needs them).
+        storage: (scratch, out) :data:`Buffers` (u in the weight's dtype): the tiles' lists go
+            to scratch, the merged lists to out. Memory that a caller keeps between calls is
+            written without the page faults of fresh memory, a large share of this pass.
 
     Returns:
-        (spike offsets, spike indices, active offsets, active indices, active potentials u).
+        (:data:`LayerLists`, their indices and potentials views of out, valid until out is
+        written again; (scratch, out) to keep).
     """
     out_width, cout = geometry[2], weight.shape[2]
     tile_rows = max(1, _TILE_NEURONS // (out_width * cout))
+    steps = inputs[0].size - 1
+    scratch, out = storage
+    starts = np.zeros((2, 2), np.int64)  # where the tile's lists begin: spikes, active
     tiles = []
     for first_row in range(0, out_pixels // out_width, tile_rows):
         last_row = min(first_row + tile_rows, out_pixels // out_width)
-        result = _tile_forward(inputs, weight, geometry, (first_row, last_row), fan,
-                               alpha, taps, refractory, thresholds)  # fmt: skip
-        tiles.append(result)
-    return _merge(tiles, inputs[0].size - 1)
+        offsets, scratch = _tile_forward(inputs, weight, geometry, (first_row, last_row), fan,
+                                         alpha, taps, refractory, thresholds, scratch,
+                                         starts[0])  # fmt: skip
+        tiles.append(offsets)
+        starts[0] = offsets[:, -1]
+    lists, out = _merge(tiles, scratch, out, steps)
+    return lists, (scratch, out)
 
 
 @numba.njit(cache=True, nogil=True)
-def _merge(
-    tiles: list, steps: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The lists of the whole layer, step by step in tile order (so sorted by neuron)."""
+def _merge(tiles: list, scratch: Buffers, out: Buffers, steps: int) -> tuple[LayerLists, Buffers]:
+    """The lists of the whole layer from the tiles' ranges of scratch (offsets (2, T + 1) each,
+    spikes and active), step by step in tile order (so sorted by neuron), written into out."""
     offsets = np.zeros((2, steps + 1), np.int64)
     for tile in tiles:
-        offsets[0] += tile[0]
-        offsets[1] += tile[2]
-    spikes = np.empty(offsets[0, -1], np.int32)
-    act_index = np.empty(offsets[1, -1], np.int32)
-    act_u = np.empty(offsets[1, -1], tiles[0][4].dtype)
+        offsets[:, 1:] += tile[:, 1:] - tile[:, :-1]
+    offsets[0] = np.cumsum(offsets[0])
+    offsets[1] = np.cumsum(offsets[1])
+    out = (fit(out[0], offsets[0, -1]), fit(out[1], offsets[1, -1]),
+           fit(out[2], offsets[1, -1]))  # fmt: skip
     fill = offsets[:, :-1].copy()
     for t in range(steps):
         for tile in tiles:
-            lo, hi = tile[0][t], tile[0][t + 1]
-            spikes[fill[0, t] : fill[0, t] + hi - lo] = tile[1][lo:hi]
+            lo, hi = tile[0, t], tile[0, t + 1]
+            out[0][fill[0, t] : fill[0, t] + hi - lo] = scratch[0][lo:hi]
             fill[0, t] += hi - lo
-            lo, hi = tile[2][t], tile[2][t + 1]
-            act_index[fill[1, t] : fill[1, t] + hi - lo] = tile[3][lo:hi]
-            act_u[fill[1, t] : fill[1, t] + hi - lo] = tile[4][lo:hi]
+            lo, hi = tile[1, t], tile[1, t + 1]
+            out[1][fill[1, t] : fill[1, t] + hi - lo] = scratch[1][lo:hi]
+            out[2][fill[1, t] : fill[1, t] + hi - lo] = scratch[2][lo:hi]
             fill[1, t] += hi - lo
-    return offsets[0], spikes, offsets[1], act_index, act_u
+    n_spikes, n_active = offsets[0, -1], offsets[1, -1]
+    lists = (offsets[0], out[0][:n_spikes], offsets[1], out[1][:n_active], out[2][:n_active])
+    return lists, out
 
 
 @numba.njit(cache=True, nogil=True)
@@ -434,9 +465,13 @@ def _tile_forward(
     taps: int,
     refractory: tuple[np.ndarray, int],
     thresholds: tuple[float, float, bool],
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    lists: Buffers,
+    start: np.ndarray,
+) -> tuple[np.ndarray, Buffers]:
     """:func:`layer_forward` for the output rows ``tile`` = (first, end): the same lists, for
-    those rows' neurons only (numbered in the layer)."""
+    those rows' neurons only (numbered in the layer), appended to ``lists`` from ``start`` =
+    [spikes, active] on. Returns their offsets (2, T + 1) into ``lists`` and ``lists`` (a larger
+    copy when it filled up)."""
     in_offsets, in_index, in_values = inputs
     stride, in_width, out_width, kernel = geometry[0], geometry[1], geometry[2], geometry[3]
     steps = in_offsets.size - 1
@@ -453,15 +488,15 @@ def _tile_forward(
     potential = np.empty(neurons, dtype)
     live = np.full(pixels, -1, np.int64)
     offsets = np.zeros((2, steps + 1), np.int64)  # spikes, active pairs
-    lists = (np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, dtype))
-    counts = np.zeros(2, np.int64)
+    offsets[:, 0] = start
+    counts = start.copy()
     base = tile[0] * out_width * weight.shape[2]
     for t in range(steps):
         z_now = synaptic[t % (taps + 1)]
         step = in_index[in_offsets[t] : in_offsets[t + 1]]
-        start = in_offsets[t] + np.searchsorted(step, bounds[0])
-        stop = in_offsets[t] + np.searchsorted(step, bounds[1])
-        _scatter(z_now, live, t + taps, in_index, in_values, start, stop, weight, fan,
+        lo = in_offsets[t] + np.searchsorted(step, bounds[0])
+        hi = in_offsets[t] + np.searchsorted(step, bounds[1])
+        _scatter(z_now, live, t + taps, in_index, in_values, lo, hi, weight, fan,
                  tile[0] * out_width)  # fmt: skip
         # Room for every neuron of the step, so that the passes below need not check.
         active_room = counts[1] + neurons if thresholds[2] else 0
@@ -475,5 +510,4 @@ def _tile_forward(
         _refract(lists[0][first : counts[0]], expiring, state[2], ref_consts, live, t,
                  t + ref_len - 1, base)  # fmt: skip
         offsets[:, t + 1] = counts
-    spikes, act_index, act_u = lists
-    return offsets[0], spikes[: counts[0]], offsets[1], act_index[: counts[1]], act_u[: counts[1]]
+    return offsets, lists
