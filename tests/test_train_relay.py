@@ -45,14 +45,14 @@ def test_segments_are_shifted_onto_the_relay_clock(tmp_path: Path) -> None:
         "segment": 1,
         "first_step": 1100,
         "last_step": 1200,
-        "gpu_s": 70.0,
+        "train_s": 70.0,
         "note": "a",
     }
     # The run is resumed: its log keeps the old rows and gains new ones.
     _write_run_log(run, [100, 200, 300, 400], [10.0, 20.0, 30.0, 45.0])
     second = append_segment(run, relay)
     assert (second["segment"], second["first_step"], second["last_step"]) == (2, 1300, 1400)
-    assert second["gpu_s"] == pytest.approx(25.0)
+    assert second["train_s"] == pytest.approx(25.0)
     with (relay / "relay_log.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert [int(r["step"]) for r in rows] == [1100, 1200, 1300, 1400]
@@ -74,3 +74,24 @@ def test_the_shipped_relay_state_matches_its_log() -> None:
     assert int(last["step"]) == int(run_last["step"]) + state.step_offset
     assert int(run_last["step"]) == state.last_run_step
     assert state.segments[-1]["last_step"] == int(last["step"])
+
+
+def test_segments_recorded_as_gpu_seconds_are_read_as_training_seconds(tmp_path: Path) -> None:
+    """relay.json files from before CPU runs were relayed keep working, and the next segment
+    rewrites them with one name."""
+    relay, run = tmp_path / "relay", tmp_path / "run"
+    relay.mkdir()
+    old = {"segment": 1, "first_step": 10, "last_step": 100, "gpu_s": 90.0, "note": "gpu"}
+    (relay / "relay.json").write_text(
+        json.dumps(
+            {"step_offset": 0, "elapsed_offset_s": 0.0, "last_run_step": 100, "segments": [old]}
+        )
+    )
+    assert read_state(relay).segments[0]["train_s"] == 90.0
+    _write_run_log(run, [100, 200], [90.0, 120.0])
+    append_segment(run, relay, "cpu")
+    written = json.loads((relay / "relay.json").read_text())["segments"]
+    assert [list(entry) for entry in written] == [
+        ["segment", "first_step", "last_step", "train_s", "note"]
+    ] * 2
+    assert written[0]["train_s"] == 90.0

@@ -259,5 +259,5 @@ def relay_log_command(
     plot_relay(relay / "relay_log.csv", relay / "relay_curve.png")
     typer.echo(
         f"segment {entry['segment']}: steps {entry['first_step']:,}-{entry['last_step']:,}, "
-        f"{entry['gpu_s']:.0f} s; wrote {relay}/relay_log.csv, relay.json, relay_curve.png"
+        f"{entry['train_s']:.0f} s; wrote {relay}/relay_log.csv, relay.json, relay_curve.png"
     )

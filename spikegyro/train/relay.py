@@ -57,14 +57,21 @@ def read_state(relay_dir: str | Path) -> RelayState:
     path = Path(relay_dir) / "relay.json"
     if not path.exists():
         return RelayState()
-    return RelayState(**json.loads(path.read_text()))
+    state = RelayState(**json.loads(path.read_text()))
+    # Files written before CPU runs were relayed named a segment's seconds "gpu_s".
+    state.segments = [
+        {("train_s" if key == "gpu_s" else key): value for key, value in entry.items()}
+        for entry in state.segments
+    ]
+    return state
 
 
 def append_segment(run_dir: str | Path, relay_dir: str | Path, note: str = "") -> dict[str, Any]:
     """Append the rows of ``run_dir/log.csv`` newer than the relay's to ``relay_log.csv``.
 
     Steps and elapsed seconds are shifted onto the relay's clock. Returns the new segment's
-    entry (also recorded in ``relay.json``): its number, first and last relay step, GPU seconds.
+    entry (also recorded in ``relay.json``): its number, first and last relay step, and the
+    seconds it trained (wall clock, on whatever machine ran it).
     """
     run_dir, relay_dir = Path(run_dir), Path(relay_dir)
     state = read_state(relay_dir)
@@ -88,7 +95,7 @@ def append_segment(run_dir: str | Path, relay_dir: str | Path, note: str = "") -
         "segment": segment,
         "first_step": int(new[0]["step"]),
         "last_step": int(new[-1]["step"]),
-        "gpu_s": round(float(new[-1]["elapsed_s"]) - first_elapsed, 1),
+        "train_s": round(float(new[-1]["elapsed_s"]) - first_elapsed, 1),
         "note": note,
     }
     relay_dir.mkdir(parents=True, exist_ok=True)
