@@ -106,6 +106,12 @@ def test_reused_buffers_carry_nothing_between_steps_and_passes_in_flight_keep_th
     for name, param in model.named_parameters():
         summed = alone[name] + other[name]
         assert relative(param.grad, summed) < 1e-12, name
+    model.float()  # buffers of the float64 steps are not reused in float32
+    _, reused = gradients(model, first.float(), y[:2].float(), start=10)
+    model.use_event_engine(2)
+    _, fresh = gradients(model, first.float(), y[:2].float(), start=10)
+    for name, grad in fresh.items():
+        assert torch.equal(reused[name], grad), name
 
 
 def test_the_engine_refuses_an_unbounded_surrogate():

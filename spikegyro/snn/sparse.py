@@ -102,7 +102,7 @@ class _Layer:
         """(output spike lists, (active offsets, indices, potentials)), written into the
         buffers ``storage.kept[key]`` (through ``storage.scratch``), which keep them."""
         empty = _empty_buffers(self.weight.dtype)
-        buffers = (storage.scratch.get("lists", empty), storage.kept.get(key, empty))
+        buffers = (_taken(storage.scratch, "lists", empty), _taken(storage.kept, key, empty))
         lists, (storage.scratch["lists"], storage.kept[key]) = layer_forward(
             inputs, self.weight, self.geometry, self.out_pixels, self.fan,
             self.alpha, self.taps, self.refractory, (self.theta, self.half_width, record),
@@ -129,6 +129,15 @@ class _Storage:
 
 def _empty_buffers(dtype: np.dtype) -> Buffers:
     return np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, dtype)
+
+
+def _taken(store: Kept, key: str, empty: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+    """``store[key]`` where it holds arrays of the dtypes of ``empty`` (a model may change its
+    precision between steps), else ``empty``."""
+    kept = store.get(key)
+    if kept is None or [a.dtype for a in kept] != [a.dtype for a in empty]:
+        return empty
+    return kept
 
 
 _ONES: dict[np.dtype, np.ndarray] = {}
@@ -419,7 +428,7 @@ class _Plan:
             (grad_w, grad_s), scratch[key] = layer_backward(
                 element.active[i], grad_s, layer.surrogate, layer.alpha, layer.taps,
                 element.inputs[i], layer.weight, layer.fan, layer.out_pixels, below,
-                scratch.get(key, (empty, empty)),
+                _taken(scratch, key, (empty, empty)),
             )  # fmt: skip
             grads.append(grad_w)
             element.backward_s.append(time.thread_time() - start)

@@ -415,15 +415,15 @@ def layer_forward(
     tile_rows = max(1, _TILE_NEURONS // (out_width * cout))
     steps = inputs[0].size - 1
     scratch, out = storage
-    starts = np.zeros((2, 2), np.int64)  # where the tile's lists begin: spikes, active
+    start = np.zeros(2, np.int64)  # where the tile's lists begin in scratch: spikes, active
     tiles = []
     for first_row in range(0, out_pixels // out_width, tile_rows):
         last_row = min(first_row + tile_rows, out_pixels // out_width)
         offsets, scratch = _tile_forward(inputs, weight, geometry, (first_row, last_row), fan,
                                          alpha, taps, refractory, thresholds, scratch,
-                                         starts[0])  # fmt: skip
+                                         start)  # fmt: skip
         tiles.append(offsets)
-        starts[0] = offsets[:, -1]
+        start = offsets[:, -1].copy()
     lists, out = _merge(tiles, scratch, out, steps)
     return lists, (scratch, out)
 
