@@ -391,9 +391,10 @@ class _Plan:
     def channels(self) -> int:
         return self.layers[-1].weight.shape[2]
 
-    def forward_element(self, x: np.ndarray, storage: _Storage) -> _Element:
+    def forward_element(self, x: np.ndarray, storage: _Storage | None = None) -> _Element:
         """Forward pass of one (C, H, W, T) input; keeps each layer's input and active pairs (in
-        ``storage``)."""
+        ``storage``: buffers of earlier steps to reuse, or new ones)."""
+        storage = storage or _Storage({}, {})
         offsets, index, values = dense_to_lists(np.ascontiguousarray(x))
         spikes: Lists = (offsets, index, values.astype(self.dtype))
         element = _Element()
