@@ -15,10 +15,10 @@ set, VmHWM reset just before the step; growth = peak minus the level before it).
 
 Gradients: on the same batch, the largest relative norm ‖g_sparse − g_dense‖/‖g_dense‖ over the
 parameter tensors (float32), and the spikes that differ between the two forward passes (a
-potential within float32 rounding of θ). Profile: where the engine's time goes per layer (CPU
-seconds of the threads that ran it, so that waiting for a busy core does not count). The load
-average of the host before and after is printed and written: on a shared machine only the
-interleaved ratio means anything.
+potential within float32 rounding of θ). Profile: where the engine's time goes per layer in a
+warm step (CPU seconds of the threads that ran it, so that waiting for a busy core does not
+count). The load average of the host before and after is printed and written: on a shared
+machine only the interleaved ratio means anything.
 
     .venv/bin/python bench/train_step.py [--repeats 3] [--threads 1 2] [--json FILE]
 """
@@ -135,8 +135,9 @@ def gradient_check(x, y) -> dict:
     grads = {}
     for compute in ("dense", "sparse"):
         net = model(compute, 2)
-        net.zero_grad()
-        angular_velocity_loss(net(x), y, START).backward()
+        for _ in range(2):  # the second step profiles the engine as training runs it, warm
+            net.zero_grad()
+            angular_velocity_loss(net(x), y, START).backward()
         grads[compute] = {n: p.grad.clone() for n, p in net.named_parameters()}
         timing = net.event_engine.timing if compute == "sparse" else None
     rel = {
