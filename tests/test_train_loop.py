@@ -348,10 +348,17 @@ def test_cli_trains_overrides_options_and_resumes(dataset, tmp_path):
     assert saved["max_minutes"] == 10.0
     again = runner.invoke(app, args)
     assert again.exit_code != 0 and "already holds a run" in str(again.exception)
-    more = ["train", "--resume", "--out", str(out), "--iterations", "4"]
+    more = ["train", "--resume", "--out", str(out), "--iterations", "4", "--lr", "3e-5"]
     result = runner.invoke(app, more, catch_exceptions=False)
     assert result.exit_code == 0, result.output
-    assert torch.load(out / "resume.pt", weights_only=False)["step"] == 4
+    state = torch.load(out / "resume.pt", weights_only=False)
+    assert state["step"] == 4
+    # --lr on --resume takes effect (the saved optimizer state holds the first rate)
+    assert saved["lr"] != 3e-5
+    assert [g["lr"] for g in state["optimizer"]["param_groups"]] == [pytest.approx(3e-5)]
+    assert state["scheduler"]["base_lrs"] == [pytest.approx(3e-5)]
+    with (out / "log.csv").open() as f:
+        assert float(list(csv.DictReader(f))[-1]["lr"]) == pytest.approx(3e-5)
     spent = ["train", "--resume", "--out", str(out), "--iterations", "6", "--max-minutes", "1e-6"]
     before = (out / "log.csv").read_text()
     refused = runner.invoke(app, spent)

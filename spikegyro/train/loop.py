@@ -382,8 +382,20 @@ def _build_run(config: TrainConfig, ctx: distributed.DistContext, resume: bool) 
         run.start_step, run.best, run.elapsed0, run.best_on, run.before = load_resume(
             run.files, model, optimizer, scheduler, ctx.device
         )
+        _use_configured_lr(optimizer, scheduler, config)
         check_time_budget(config.max_minutes, run.elapsed0)
     return run
+
+
+def _use_configured_lr(
+    optimizer: torch.optim.Optimizer, scheduler: Any, config: TrainConfig
+) -> None:
+    """Put a resumed optimizer and schedule on the configuration's learning rate: their saved
+    state holds the rate the run was started with, which ``--lr`` on ``--resume`` overrides."""
+    scheduler.base_lrs = [config.lr] * len(optimizer.param_groups)
+    for group in optimizer.param_groups:
+        group["initial_lr"] = config.lr
+        group["lr"] = config.lr * lr_factor(scheduler.last_epoch, config)
 
 
 def _prepare_validation(run: _Run) -> None:
