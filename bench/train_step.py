@@ -135,14 +135,13 @@ def gradient_check(x, y) -> dict:
     grads = {}
     for compute in ("dense", "sparse"):
         net = model(compute, 2)
-        for _ in range(2):  # the second step profiles the engine as training runs it, warm
+        # The engine's second step is profiled: warm, as training runs it.
+        for _ in range(2 if compute == "sparse" else 1):
             net.zero_grad()
             angular_velocity_loss(net(x), y, START).backward()
         grads[compute] = {n: p.grad.clone() for n, p in net.named_parameters()}
         timing = net.event_engine.timing if compute == "sparse" else None
-    rel = {
-        n: float((grads["sparse"][n] - g).norm() / g.norm()) for n, g in grads["dense"].items()
-    }
+    rel = {n: float((grads["sparse"][n] - g).norm() / g.norm()) for n, g in grads["dense"].items()}
     with torch.no_grad():
         _, dense_spikes = net.forward_with_spikes(x)
     plan = _Plan.of(net.convs, net.pool, (x.shape[2], x.shape[3]), np.float32, record=False)

@@ -16,6 +16,7 @@ them), float64 weights in float64.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -270,9 +271,7 @@ class EventDrivenStack:
         costs = x.detach().flatten(1).sum(1).tolist()
         plan.kept = [self._kept.pop() if self._kept else {} for _ in costs]
         plan.elements = self._map(
-            lambda b: self._with_scratch(
-                lambda scratch: plan.forward_element(x_np[b], _Storage(plan.kept[b], scratch))
-            ),
+            lambda b, scratch: plan.forward_element(x_np[b], _Storage(plan.kept[b], scratch)),
             costs,
         )
         self.timing = SparseTiming(forward_s=time.perf_counter() - start)
@@ -289,14 +288,14 @@ class EventDrivenStack:
             self._give_back(plan)
         return torch.from_numpy(pooled).to(device=x.device, dtype=weight.dtype), plan
 
-    def _with_scratch(self, fn: Callable[[Kept], Any]) -> Any:
-        """fn(scratch buffers no other thread uses meanwhile)."""
+    def _with_scratch(self, fn: Callable[[int, Kept], Any], b: int) -> Any:
+        """fn(b, scratch buffers taken from the pool and given back after)."""
         try:
             scratch = self._scratch.pop()
         except IndexError:
             scratch = {}
         try:
-            return fn(scratch)
+            return fn(b, scratch)
         finally:
             self._scratch.append(scratch)
 
@@ -311,10 +310,7 @@ class EventDrivenStack:
         grad_np = grad_pooled.detach().cpu().numpy().astype(plan.dtype)
         costs = [sum(a[1].size for a in e.active) for e in plan.elements]
         per_element = self._map(
-            lambda b: self._with_scratch(
-                lambda scratch: plan.backward_element(plan.elements[b], grad_np[b], scratch)
-            ),
-            costs,
+            lambda b, scratch: plan.backward_element(plan.elements[b], grad_np[b], scratch), costs
         )
         self.timing.backward_s = time.perf_counter() - start
         self._give_back(plan)
@@ -329,15 +325,17 @@ class EventDrivenStack:
             grads.append(torch.from_numpy(shaped).permute(3, 2, 0, 1).contiguous().to(conv.weight))
         return grads
 
-    def _map(self, fn: Callable[[int], Any], costs: Sequence[int]) -> list[Any]:
-        """[fn(0), fn(1), …] for the batch elements, on ``threads`` threads, the costliest
-        (by ``costs``) started first so that no thread is left with a long one at the end."""
+    def _map(self, fn: Callable[[int, Kept], Any], costs: Sequence[int]) -> list[Any]:
+        """[fn(0, scratch), fn(1, scratch), …] for the batch elements, on ``threads`` threads,
+        the costliest (by ``costs``) started first so that no thread is left with a long one at
+        the end; ``scratch``: buffers no other thread uses meanwhile."""
         count = len(costs)
+        call = functools.partial(self._with_scratch, fn)
         if self.threads == 1 or count == 1:
-            return [fn(b) for b in range(count)]
+            return [call(b) for b in range(count)]
         order = sorted(range(count), key=lambda b: -costs[b])
         with ThreadPoolExecutor(min(self.threads, count)) as workers:
-            done = dict(zip(order, workers.map(fn, order), strict=True))
+            done = dict(zip(order, workers.map(call, order), strict=True))
         return [done[b] for b in range(count)]
 
 
