@@ -16,7 +16,7 @@ from spikegyro.models.snn6 import READOUT, SNN6
 from spikegyro.snn.functional import fire, psp, surrogate_gradient, surrogate_half_width
 from spikegyro.snn.layers import GASP, SRMConv, SRMDense, SRMParams
 from spikegyro.snn.sparse import EventDrivenStack, _Plan
-from spikegyro.snn.sparse_forward import _threshold, fanout
+from spikegyro.snn.sparse_forward import _threshold, divisor, fanout, quotient
 from spikegyro.train.loss import angular_velocity_loss
 
 CUT = 0.05
@@ -243,6 +243,20 @@ def test_fanout_table_is_the_convolutions_connectivity(in_hw, kernel, stride):
         expected = {(int(o), int(out[o]) - 1) for o in out.nonzero().flatten()}
         ours = {(int(o), int(t)) for o, t in pairs[:, offsets[pixel] : offsets[pixel + 1]].T}
         assert ours == expected, pixel
+
+
+@pytest.mark.parametrize(
+    "d", [1, 2, 3, 7, 16, 48, 100, 255, 256, 257, 1000003, 2**30 + 1, 2**31 - 1]
+)
+def test_division_by_multiplication_equals_integer_division(d):
+    """n // d by a multiply and a shift, against Python's integers, for indices from 0 to the
+    largest int32: random ones and those at and around every multiple's edge near both ends."""
+    rng = np.random.default_rng(d)
+    top = 2**31 - 1
+    edges = [k * d + e for k in (0, 1, 2, top // d - 1, top // d) for e in (-1, 0, 1)]
+    numbers = [n for n in [*rng.integers(0, 2**31, 2000).tolist(), *edges, top] if 0 <= n <= top]
+    div = divisor(d)
+    assert [quotient(n, div) for n in numbers] == [n // d for n in numbers]
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])

@@ -35,8 +35,10 @@ from spikegyro.snn.sparse_forward import (
     Buffers,
     alpha_constants,
     dense_to_lists,
+    divisor,
     fanout,
     layer_forward,
+    quotient,
     refractory_constants,
 )
 
@@ -100,15 +102,18 @@ class _Layer:
     def forward(
         self, inputs: Lists, record: bool, storage: _Storage, key: str
     ) -> tuple[Lists, tuple[np.ndarray, ...]]:
-        """(output spike lists, (active offsets, indices, potentials)), written into the
-        buffers ``storage.kept[key]`` (through ``storage.scratch``), which keep them."""
+        """(output spike lists, (active offsets (tiles, T + 1), indices, potentials)), written
+        into the buffers ``storage.kept[key]`` (the tiles' spikes through ``storage.scratch``),
+        which keep them."""
         empty = _empty_buffers(self.weight.dtype)
-        buffers = (_taken(storage.scratch, "lists", empty), _taken(storage.kept, key, empty))
-        lists, (storage.scratch["lists"], storage.kept[key]) = layer_forward(
+        scratch = _taken(storage.scratch, "spikes", empty[:1])[0]
+        buffers = (scratch, _taken(storage.kept, key, empty))
+        lists, (scratch, storage.kept[key]) = layer_forward(
             inputs, self.weight, self.geometry, self.out_pixels, self.fan,
             self.alpha, self.taps, self.refractory, (self.theta, self.half_width, record),
             buffers,
         )  # fmt: skip
+        storage.scratch["spikes"] = (scratch,)
         spk_off, spk_idx, act_off, act_idx, act_u = lists
         return (spk_off, spk_idx, _ones(spk_idx.size, self.weight.dtype)), (
             act_off,
@@ -171,10 +176,12 @@ def _pool_forward(
     """(channels·cells, T) pooled spikes: feature c·cells + cell sums pooling[cell, px]·s[px, c]."""
     steps = offsets.size - 1
     cells = pooling.shape[0]
+    div = divisor(channels)
     out = np.zeros((channels * cells, steps), pooling.dtype)
     for t in range(steps):
         for i in range(offsets[t], offsets[t + 1]):
-            pixel, c = divmod(index[i], channels)
+            pixel = quotient(index[i], div)
+            c = index[i] - pixel * channels
             for cell in range(cells):
                 out[c * cells + cell, t] += pooling[cell, pixel]
     return out
@@ -184,17 +191,20 @@ def _pool_forward(
 def _pool_backward(
     offsets: np.ndarray, index: np.ndarray, grad: np.ndarray, pooling: np.ndarray, channels: int
 ) -> np.ndarray:
-    """∂L/∂s at the pairs (offsets, index) from ∂L/∂pooled (features, T)."""
+    """∂L/∂s at the pairs (offsets (tiles, T + 1), index) from ∂L/∂pooled (features, T)."""
     cells = pooling.shape[0]
+    div = divisor(channels)
     out = np.zeros(index.size, grad.dtype)
     zero = np.zeros(1, grad.dtype)[0]  # a literal 0 would make the sum float64
-    for t in range(offsets.size - 1):
-        for i in range(offsets[t], offsets[t + 1]):
-            pixel, c = divmod(index[i], channels)
-            total = zero
-            for cell in range(cells):
-                total += pooling[cell, pixel] * grad[c * cells + cell, t]
-            out[i] = total
+    for t in range(offsets.shape[1] - 1):
+        for s in range(offsets.shape[0]):
+            for i in range(offsets[s, t], offsets[s, t + 1]):
+                pixel = quotient(index[i], div)
+                c = index[i] - pixel * channels
+                total = zero
+                for cell in range(cells):
+                    total += pooling[cell, pixel] * grad[c * cells + cell, t]
+                out[i] = total
     return out
 
 

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from spikegyro.snn.sparse_forward import fit, pixel_group
+from spikegyro.snn.sparse_forward import divisor, fit, pixel_group, quotient
 
 _FUTURE = np.iinfo(np.int64).max
 
@@ -59,12 +59,12 @@ def _feed(
 ) -> None:
     """A += weights[0]·δ, D += weights[1]·δ at the pairs ``start:stop``; with ``live``
     non-empty, their pixels stay live down to step ``until`` (a new δ; steps only decrease)."""
-    cout = state.shape[1] // max(live.size, 1)
+    div = divisor(state.shape[1] // max(live.size, 1))
     for j in range(start, stop):
         state[0, index[j]] += weights[0] * delta[j]
         state[1, index[j]] += weights[1] * delta[j]
         if live.size:
-            live[index[j] // cout] = until
+            live[quotient(index[j], div)] = until
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -113,9 +113,10 @@ def _weight_grad_at(
     """∂W[tap, c, :] += value·∂L/∂z[pixel, :] for the inputs of step t."""
     offsets, index, values = inputs
     cin, cout = grad_w.shape[1], grad_w.shape[2]
+    div = divisor(cin)
     i, stop = offsets[t], offsets[t + 1]
     while i < stop:
-        pixel_in, end = pixel_group(index, i, stop, cin)
+        pixel_in, end = pixel_group(index, i, stop, cin, div)
         for k in range(fan[0][pixel_in], fan[0][pixel_in + 1]):
             pixel, tap = fan[1][0, k], fan[1][1, k]
             if live[pixel] >= t:
@@ -139,25 +140,28 @@ def _input_grad_at(
     below: tuple[np.ndarray, np.ndarray],
     fan: tuple[np.ndarray, np.ndarray],
 ) -> None:
-    """out[j] = convᵀ(∂L/∂z[t])[index[j]] for the pairs of the layer below at step t."""
+    """out[j] = convᵀ(∂L/∂z[t])[index[j]] for the pairs of the layer below at step t (offsets
+    (tiles, T + 1): a range per tile)."""
     offsets, index = below
     cin, cout = weight.shape[1], weight.shape[2]
+    div = divisor(cin)
     zero = np.zeros(1, out.dtype)[0]  # a literal 0 would make the sum float64
-    i, stop = offsets[t], offsets[t + 1]
-    while i < stop:
-        pixel_in, end = pixel_group(index, i, stop, cin)
-        for k in range(fan[0][pixel_in], fan[0][pixel_in + 1]):
-            pixel, tap = fan[1][0, k], fan[1][1, k]
-            if live[pixel] >= t:
-                continue  # ∂L/∂z is exactly 0 there
-            grad = grad_z[pixel * cout : (pixel + 1) * cout]
-            for e in range(i, end):
-                w = weight[tap, index[e] - pixel_in * cin]
-                total = zero
-                for o in range(cout):
-                    total += w[o] * grad[o]
-                out[e] += total
-        i = end
+    for s in range(offsets.shape[0]):
+        i, stop = offsets[s, t], offsets[s, t + 1]
+        while i < stop:
+            pixel_in, end = pixel_group(index, i, stop, cin, div)
+            for k in range(fan[0][pixel_in], fan[0][pixel_in + 1]):
+                pixel, tap = fan[1][0, k], fan[1][1, k]
+                if live[pixel] >= t:
+                    continue  # ∂L/∂z is exactly 0 there
+                grad = grad_z[pixel * cout : (pixel + 1) * cout]
+                for e in range(i, end):
+                    w = weight[tap, index[e] - pixel_in * cin]
+                    total = zero
+                    for o in range(cout):
+                        total += w[o] * grad[o]
+                    out[e] += total
+            i = end
 
 
 @numba.njit(cache=True, nogil=True)
@@ -177,16 +181,17 @@ def layer_backward(
     """Weight gradient of one layer and ∂L/∂s of the layer below at its active pairs.
 
     Args:
-        active: (offsets, flat indices, potentials u) of this layer's pairs within the
-            surrogate's support; grad_s: ∂L/∂s at those pairs (aligned with the indices).
+        active: (offsets (tiles, T + 1), flat indices, potentials u) of this layer's pairs
+            within the surrogate's support, as :func:`spikegyro.snn.sparse_forward.layer_forward`
+            gives them; grad_s: ∂L/∂s at those pairs (aligned with the indices).
         surrogate: [θ, scale_rho/θ, −1/(tau_rho·θ)] in the weight's dtype: ρ(u) =
             scale_rho/θ·exp(−|u − θ|/(tau_rho·θ)) at the recorded pairs.
         alpha, taps: the PSP kernel ε[k] = c·k·pᵏ, k < L = ``taps`` steps
             (:func:`spikegyro.snn.sparse_forward.alpha_constants`).
         inputs: (offsets, flat indices, values) of this layer's input, as in the forward pass.
         weight: (kh·kw, C_in, C_out); fan, out_pixels: as in the forward pass.
-        below: (offsets, flat indices) of the active pairs of the layer below (the input side);
-            an empty index list when its gradient is not wanted.
+        below: (offsets (tiles, T + 1), flat indices) of the active pairs of the layer below
+            (the input side); an empty index list when its gradient is not wanted.
         storage: buffers in the weight's dtype that the caller keeps between calls, for δ and
             for ∂L/∂s_in (as in the forward pass: fresh memory costs page faults).
 
@@ -195,7 +200,7 @@ def layer_backward(
         buffer), the buffers to keep (larger copies where they were too small)).
     """
     act_offsets, act_index, act_u = active
-    steps = act_offsets.size - 1
+    steps = act_offsets.shape[1] - 1
     cout = weight.shape[2]
     storage = (fit(storage[0], act_u.size), fit(storage[1], below[1].size))
     delta = _deltas(act_u, grad_s, surrogate, storage[0])
@@ -210,11 +215,12 @@ def layer_backward(
     head, tail = alpha[2:4].copy(), alpha[3:5]  # δ enters A only; leaves A and D
     head[1] = 0.0
     for t in range(steps - 1, -1, -1):
-        if t + taps < steps:  # the δ of step t + L leave the kernel
-            _feed(state, act_index, delta, act_offsets[t + taps], act_offsets[t + taps + 1], tail,
-                  live[:0], 0)  # fmt: skip
-        _feed(state, act_index, delta, act_offsets[t], act_offsets[t + 1], head, live,
-              t - taps)  # fmt: skip
+        for s in range(act_offsets.shape[0]):
+            if t + taps < steps:  # the δ of step t + L leave the kernel
+                _feed(state, act_index, delta, act_offsets[s, t + taps],
+                      act_offsets[s, t + taps + 1], tail, live[:0], 0)  # fmt: skip
+            _feed(state, act_index, delta, act_offsets[s, t], act_offsets[s, t + 1], head, live,
+                  t - taps)  # fmt: skip
         _adjoint_step(state, grad_z, live, t, alpha)
         _weight_grad_at(grad_w, grad_z, live, t, inputs, fan)
         if below[1].size:

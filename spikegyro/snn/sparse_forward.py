@@ -129,10 +129,32 @@ def fanout(
 
 
 @numba.njit(cache=True, nogil=True)
-def pixel_group(index: np.ndarray, start: int, stop: int, cin: int) -> tuple[int, int]:
+def divisor(d: int) -> tuple[int, int]:
+    """(m, s) with n // d == (n·m) >> s for every 0 <= n < 2³¹ and 1 <= d < 2³¹: a
+    multiplication instead of a division (Granlund & Montgomery, PLDI 1994: m = ⌈2^s/d⌉,
+    s = 31 + ⌈log₂ d⌉; m < 2³² + 1, so n·m fits in an int64). Neuron indices are int32, and a
+    64-bit division per index cost a quarter of the δ recursion's time."""
+    bits = 0
+    while (1 << bits) < d:
+        bits += 1
+    shift = 31 + bits
+    return ((1 << shift) + d - 1) // d, shift
+
+
+@numba.njit(cache=True, nogil=True)
+def quotient(n: int, div: tuple[int, int]) -> int:
+    """n // d for 0 <= n < 2³¹, with div = :func:`divisor` (d)."""
+    return (np.int64(n) * div[0]) >> div[1]
+
+
+@numba.njit(cache=True, nogil=True)
+def pixel_group(
+    index: np.ndarray, start: int, stop: int, cin: int, div: tuple[int, int]
+) -> tuple[int, int]:
     """(input pixel of ``index[start]``, end of the run of entries at that pixel within
-    ``start:stop``): entries of one pixel are adjacent in a list sorted by flat index."""
-    pixel = index[start] // cin
+    ``start:stop``): entries of one pixel are adjacent in a list sorted by flat index;
+    div = :func:`divisor` (cin)."""
+    pixel = quotient(index[start], div)
     limit = (pixel + 1) * cin  # no division per entry
     end = start + 1
     while end < stop and index[end] < limit:
@@ -157,10 +179,11 @@ def _scatter(
     (``first_pixel`` on, as many as ``live`` holds) each input ``start:stop`` reaches (the
     convolution as a scatter from its non-zero inputs)."""
     cin, cout = weight.shape[1], weight.shape[2]
+    div = divisor(cin)
     fan_offsets, fan_pairs = fan
     i = start
     while i < stop:
-        pixel_in, end = pixel_group(index, i, stop, cin)
+        pixel_in, end = pixel_group(index, i, stop, cin, div)
         for k in range(fan_offsets[pixel_in], fan_offsets[pixel_in + 1]):
             pixel, tap = fan_pairs[0, k] - first_pixel, fan_pairs[1, k]
             if pixel < 0 or pixel >= live.size:
@@ -312,12 +335,12 @@ def _refract(
     pixel live while its response lasts, to step ``last`` = t + M − 1. Neurons are numbered in
     the layer, ``base`` + the tile's own. refractory = [a, q, −a·q^(M−1)]
     (:func:`refractory_constants`)."""
-    cout = pole.size // live.size
+    div = divisor(pole.size // live.size)
     for n in expiring:
-        if live[(n - base) // cout] > t:
+        if live[quotient(n - base, div)] > t:
             pole[n - base] += refractory[2]
     for n in spikes:
-        pixel = (n - base) // cout
+        pixel = quotient(n - base, div)
         pole[n - base] += refractory[0]
         live[pixel] = max(live[pixel], last)
 
@@ -367,8 +390,10 @@ keeps between calls: the layer writes into it and returns it, as a larger copy w
 small."""
 
 LayerLists = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-"""What a layer's pass gives: spike offsets, spike indices, active offsets, active indices,
-active potentials u."""
+"""What a layer's pass gives: spike offsets (T + 1,), spike indices, active offsets (tiles,
+T + 1), active indices, active potentials u. The active pairs stay in the tiles' order: those of
+step t are the ranges ``offsets[s, t]:offsets[s, t + 1]`` over the tiles s, each sorted by neuron,
+the tiles in order of their neurons."""
 
 
 @numba.njit(cache=True, nogil=True)
@@ -382,13 +407,15 @@ def layer_forward(
     taps: int,
     refractory: tuple[np.ndarray, int],
     thresholds: tuple[float, float, bool],
-    storage: tuple[Buffers, Buffers],
-) -> tuple[LayerLists, tuple[Buffers, Buffers]]:
+    storage: tuple[np.ndarray, Buffers],
+) -> tuple[LayerLists, tuple[np.ndarray, Buffers]]:
     """Run one layer over all steps; see the module docstring.
 
     Neurons are independent given their inputs, so the layer runs in tiles of whole output rows,
-    each over all steps (its state stays in cache), one after the other into one scratch list,
-    and the tiles' lists are merged step by step.
+    each over all steps (its state stays in cache), one after the other. The tiles' spikes are
+    merged step by step into one list (the next layer's input); their active pairs are left
+    where the tiles wrote them, in ranges per tile and step (copying them, 8 bytes per pair,
+    cost a third as much as the tiles' pass in layer 1).
 
     Args:
         inputs: offsets, flat indices, values of the input lists (CSR by step; values multiply W).
@@ -403,9 +430,10 @@ def layer_forward(
             scalars of the weight's dtype, so that the comparisons are made in that precision as
             the batch path makes them; record: keep the pairs within the support (only a layer
             that back-propagates needs them).
-        storage: (scratch, out) :data:`Buffers` (u in the weight's dtype): the tiles' lists go
-            to scratch, the merged lists to out. Memory that a caller keeps between calls is
-            written without the page faults of fresh memory, a large share of this pass.
+        storage: (scratch, out): the tiles' spike lists go to scratch (int32), the merged spike
+            list and the active pairs to the :data:`Buffers` out (u in the weight's dtype).
+            Memory that a caller keeps between calls is written without the page faults of
+            fresh memory, a large share of this pass.
 
     Returns:
         (:data:`LayerLists`, their indices and potentials views of out, valid until out is
@@ -415,43 +443,44 @@ def layer_forward(
     tile_rows = max(1, _TILE_NEURONS // (out_width * cout))
     steps = inputs[0].size - 1
     scratch, out = storage
-    start = np.zeros(2, np.int64)  # where the tile's lists begin in scratch: spikes, active
+    lists = (scratch, out[1], out[2])
+    start = np.zeros(2, np.int64)  # where the tile's lists begin: spikes, active
     tiles = []
     for first_row in range(0, out_pixels // out_width, tile_rows):
         last_row = min(first_row + tile_rows, out_pixels // out_width)
-        offsets, scratch = _tile_forward(inputs, weight, geometry, (first_row, last_row), fan,
-                                         alpha, taps, refractory, thresholds, scratch,
-                                         start)  # fmt: skip
+        offsets, lists = _tile_forward(inputs, weight, geometry, (first_row, last_row), fan,
+                                       alpha, taps, refractory, thresholds, lists,
+                                       start)  # fmt: skip
         tiles.append(offsets)
         start = offsets[:, -1].copy()
-    lists, out = _merge(tiles, scratch, out, steps)
-    return lists, (scratch, out)
+    spike_offsets, spikes = _merge(tiles, lists[0], out[0], steps)
+    active = np.empty((len(tiles), steps + 1), np.int64)
+    for s, tile in enumerate(tiles):
+        active[s] = tile[1]
+    n_spikes, n_active = spike_offsets[-1], start[1]
+    result = (spike_offsets, spikes[:n_spikes], active, lists[1][:n_active], lists[2][:n_active])
+    return result, (lists[0], (spikes, lists[1], lists[2]))
 
 
 @numba.njit(cache=True, nogil=True)
-def _merge(tiles: list, scratch: Buffers, out: Buffers, steps: int) -> tuple[LayerLists, Buffers]:
-    """The lists of the whole layer from the tiles' ranges of scratch (offsets (2, T + 1) each,
-    spikes and active), step by step in tile order (so sorted by neuron), written into out."""
-    offsets = np.zeros((2, steps + 1), np.int64)
+def _merge(
+    tiles: list, scratch: np.ndarray, out: np.ndarray, steps: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The spike list of the whole layer from the tiles' ranges of scratch (offsets (2, T + 1)
+    each, spikes and active), step by step in tile order (so sorted by neuron), written into
+    out: (offsets (T + 1,), out or a larger array)."""
+    offsets = np.zeros(steps + 1, np.int64)
     for tile in tiles:
-        offsets[:, 1:] += tile[:, 1:] - tile[:, :-1]
-    offsets[0] = np.cumsum(offsets[0])
-    offsets[1] = np.cumsum(offsets[1])
-    out = (fit(out[0], offsets[0, -1]), fit(out[1], offsets[1, -1]),
-           fit(out[2], offsets[1, -1]))  # fmt: skip
-    fill = offsets[:, :-1].copy()
+        offsets[1:] += tile[0, 1:] - tile[0, :-1]
+    offsets = np.cumsum(offsets)
+    out = fit(out, offsets[-1])
+    fill = offsets[:-1].copy()
     for t in range(steps):
         for tile in tiles:
             lo, hi = tile[0, t], tile[0, t + 1]
-            out[0][fill[0, t] : fill[0, t] + hi - lo] = scratch[0][lo:hi]
-            fill[0, t] += hi - lo
-            lo, hi = tile[1, t], tile[1, t + 1]
-            out[1][fill[1, t] : fill[1, t] + hi - lo] = scratch[1][lo:hi]
-            out[2][fill[1, t] : fill[1, t] + hi - lo] = scratch[2][lo:hi]
-            fill[1, t] += hi - lo
-    n_spikes, n_active = offsets[0, -1], offsets[1, -1]
-    lists = (offsets[0], out[0][:n_spikes], offsets[1], out[1][:n_active], out[2][:n_active])
-    return lists, out
+            out[fill[t] : fill[t] + hi - lo] = scratch[lo:hi]
+            fill[t] += hi - lo
+    return offsets, out
 
 
 @numba.njit(cache=True, nogil=True)
