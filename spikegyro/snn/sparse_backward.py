@@ -47,24 +47,31 @@ def _deltas(
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _feed(
+def _enter(
     state: np.ndarray,
     index: np.ndarray,
     delta: np.ndarray,
-    start: int,
-    stop: int,
-    weights: np.ndarray,
+    span: tuple[int, int],
     live: np.ndarray,
     until: int,
 ) -> None:
-    """A += weights[0]·δ, D += weights[1]·δ at the pairs ``start:stop``; with ``live``
-    non-empty, their pixels stay live down to step ``until`` (a new δ; steps only decrease)."""
-    div = divisor(state.shape[1] // max(live.size, 1))
-    for j in range(start, stop):
-        state[0, index[j]] += weights[0] * delta[j]
-        state[1, index[j]] += weights[1] * delta[j]
-        if live.size:
-            live[quotient(index[j], div)] = until
+    """A += δ at the pairs ``span`` (start, stop), whose pixels stay live down to step ``until``
+    (a new δ; steps only decrease). D is left alone: δ enters the double pole through A only."""
+    div = divisor(state.shape[1] // live.size)
+    for j in range(span[0], span[1]):
+        state[0, index[j]] += delta[j]
+        live[quotient(index[j], div)] = until
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _leave(
+    state: np.ndarray, index: np.ndarray, delta: np.ndarray, span: tuple[int, int], tail: np.ndarray
+) -> None:
+    """A += −pᴸ·δ, D += −L·pᴸ·δ (tail = [−pᴸ, −L·pᴸ]) at the pairs ``span``: their δ leave the
+    truncated kernel."""
+    for j in range(span[0], span[1]):
+        state[0, index[j]] += tail[0] * delta[j]
+        state[1, index[j]] += tail[1] * delta[j]
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -212,15 +219,13 @@ def layer_backward(
     # Per pixel, the step at which its last δ leaves the kernel (the state is cleared there);
     # ∂L/∂z may be non-zero only at the steps above it, back to the last δ ("never": _FUTURE).
     live = np.full(out_pixels, _FUTURE, np.int64)
-    head, tail = alpha[2:4].copy(), alpha[3:5]  # δ enters A only; leaves A and D
-    head[1] = 0.0
     for t in range(steps - 1, -1, -1):
         for s in range(act_offsets.shape[0]):
             if t + taps < steps:  # the δ of step t + L leave the kernel
-                _feed(state, act_index, delta, act_offsets[s, t + taps],
-                      act_offsets[s, t + taps + 1], tail, live[:0], 0)  # fmt: skip
-            _feed(state, act_index, delta, act_offsets[s, t], act_offsets[s, t + 1], head, live,
-                  t - taps)  # fmt: skip
+                span = (act_offsets[s, t + taps], act_offsets[s, t + taps + 1])
+                _leave(state, act_index, delta, span, alpha[3:5])
+            _enter(state, act_index, delta, (act_offsets[s, t], act_offsets[s, t + 1]), live,
+                   t - taps)  # fmt: skip
         _adjoint_step(state, grad_z, live, t, alpha)
         _weight_grad_at(grad_w, grad_z, live, t, inputs, fan)
         if below[1].size:
