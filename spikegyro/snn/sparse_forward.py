@@ -133,7 +133,7 @@ def divisor(d: int) -> tuple[int, int]:
     """(m, s) with n // d == (n·m) >> s for every 0 <= n < 2³¹ and 1 <= d < 2³¹: a
     multiplication instead of a division (Granlund & Montgomery, PLDI 1994: m = ⌈2^s/d⌉,
     s = 31 + ⌈log₂ d⌉; m < 2³² + 1, so n·m fits in an int64). Neuron indices are int32, and a
-    64-bit division per index cost a quarter of the δ recursion's time."""
+    64-bit division per index cost a quarter of the time of feeding δ into the recursion."""
     bits = 0
     while (1 << bits) < d:
         bits += 1
