@@ -223,7 +223,7 @@ def layer_backward(
         for s in range(act_offsets.shape[0]):
             if t + taps < steps:  # the δ of step t + L leave the kernel
                 span = (act_offsets[s, t + taps], act_offsets[s, t + taps + 1])
-                _leave(state, act_index, delta, span, alpha[3:5])
+                _leave(state, act_index, delta, span, alpha[2:4])
             _enter(state, act_index, delta, (act_offsets[s, t], act_offsets[s, t + 1]), live,
                    t - taps)  # fmt: skip
         _adjoint_step(state, grad_z, live, t, alpha)

@@ -200,7 +200,7 @@ def _scatter(
 
 
 def alpha_constants(kernel: np.ndarray, dtype: type) -> tuple[np.ndarray, int]:
-    """([c, p, 1, −pᴸ, −L·pᴸ] in ``dtype``, L) for the truncated PSP taps ε[k] = c·k·pᵏ, k < L.
+    """([c, p, −pᴸ, −L·pᴸ] in ``dtype``, L) for the truncated PSP taps ε[k] = c·k·pᵏ, k < L.
 
     c = ε[1]/p and p = ε[2]/(2·ε[1]) from the first taps (computed in float64 from taps exact to
     the last bit of a double they give c = e/τs and p = exp(−1/τs) to rounding); the rest of the
@@ -208,7 +208,7 @@ def alpha_constants(kernel: np.ndarray, dtype: type) -> tuple[np.ndarray, int]:
     """
     c, p = fit_alpha_kernel(kernel, "PSP kernel")
     size = np.asarray(kernel).size
-    consts = np.array([c, p, 1.0, -(p**size), -size * p**size], dtype=dtype)
+    consts = np.array([c, p, -(p**size), -size * p**size], dtype=dtype)
     return consts, size
 
 
@@ -235,7 +235,7 @@ def _advance(
     in z[t] and the tail of z[t − L] (its slot is cleared for z[t + 1]); the refractory pole
     decays by ``q_ref`` (this step's spikes are added after thresholding). Branch-free over
     contiguous memory, so it vectorises."""
-    c_eps, p_eps, tail_a, tail_d = alpha[0], alpha[1], alpha[3], alpha[4]
+    c_eps, p_eps, tail_a, tail_d = alpha[0], alpha[1], alpha[2], alpha[3]
     a, d, r, u = state[0, n0:n1], state[1, n0:n1], state[2, n0:n1], potential[n0:n1]
     z, old = z_now[n0:n1], z_old[n0:n1]
     for o in range(n1 - n0):  # a = p·A[t−1], d = p·(D[t−1] + A[t−1]), r = R[t] from the last step
@@ -415,14 +415,14 @@ def layer_forward(
     each over all steps (its state stays in cache), one after the other. The tiles' spikes are
     merged step by step into one list (the next layer's input); their active pairs are left
     where the tiles wrote them, in ranges per tile and step (copying them, 8 bytes per pair,
-    cost a third as much as the tiles' pass in layer 1).
+    cost layer 1 a tenth of its pass on an idle machine, more while the memory was busy).
 
     Args:
         inputs: offsets, flat indices, values of the input lists (CSR by step; values multiply W).
         weight: (kh·kw, C_in, C_out), the dtype of the computation (float32 or float64).
         geometry: [stride, input width, output width, kernel width] (px); out_pixels: output
             height × width; fan: :func:`fanout`.
-        alpha: [c, p, 1, −pᴸ, −L·pᴸ] of the PSP kernel ε[k] = c·k·pᵏ for k < L = ``taps``
+        alpha: [c, p, −pᴸ, −L·pᴸ] of the PSP kernel ε[k] = c·k·pᵏ for k < L = ``taps``
             (steps), in the weight's dtype (:func:`alpha_constants`).
         refractory: ([a, q, −a·q^(M−1)] in the weight's dtype, M) of the refractory kernel
             ν[k] = a·q^(k−1), 1 ≤ k < M (potential units; :func:`refractory_constants`).
