@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import copy
 import math
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -112,6 +114,38 @@ def test_reused_buffers_carry_nothing_between_steps_and_passes_in_flight_keep_th
     _, fresh = gradients(model, first.float(), y[:2].float(), start=10)
     for name, grad in fresh.items():
         assert torch.equal(reused[name], grad), name
+
+
+def test_stages_run_in_order_per_element_lowest_stage_first_and_a_failure_stops_them():
+    """The engine's scheduler: every (element, stage) once, an element's stages in order, a
+    free thread taking the lowest ready stage of the costliest element; an exception in one
+    stage reaches the caller and no stage starts after it."""
+    engine = EventDrivenStack([], GASP(), threads=2)
+    costs = [3.0, 9.0, 1.0, 5.0, 7.0]
+    started: list[tuple[int, int]] = []
+    lock = threading.Lock()
+
+    def stage(b: int, k: int, scratch: dict) -> None:
+        with lock:
+            started.append((b, k))
+        time.sleep(0.002 * (1 + b))
+        if (b, k) == failing:
+            raise ValueError("stage failed")
+
+    failing = None
+    engine._stages(3, stage, costs)
+    assert sorted(started) == [(b, k) for b in range(5) for k in range(3)]
+    for b in range(5):
+        assert [k for e, k in started if e == b] == [0, 1, 2]
+    started.clear()
+    EventDrivenStack([], GASP(), threads=1)._stages(3, stage, costs)
+    assert started == [(b, k) for k in range(3) for b in (1, 4, 3, 0, 2)]
+    started.clear()
+    failing = (3, 1)
+    with pytest.raises(ValueError, match="stage failed"):
+        engine._stages(3, stage, costs)
+    time.sleep(0.05)
+    assert (3, 1) in started and (3, 2) not in started
 
 
 def test_the_engine_refuses_an_unbounded_surrogate():

@@ -16,7 +16,8 @@ them), float64 weights in float64.
 
 from __future__ import annotations
 
-import functools
+import heapq
+import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -30,7 +31,7 @@ from torch import nn
 
 from spikegyro.snn.functional import surrogate_half_width
 from spikegyro.snn.layers import SRMConv
-from spikegyro.snn.sparse_backward import layer_backward
+from spikegyro.snn.sparse_backward import layer_backward, surrogate_pdf
 from spikegyro.snn.sparse_forward import (
     Buffers,
     alpha_constants,
@@ -167,6 +168,7 @@ class _Element:
     pooled: np.ndarray | None = None  # (features, T)
     forward_s: list[float] = field(default_factory=list)  # per layer
     backward_s: list[float] = field(default_factory=list)  # per layer, last layer first
+    grads: list[np.ndarray] = field(default_factory=list)  # weight gradients, last layer first
 
 
 @numba.njit(cache=True, nogil=True)
@@ -187,14 +189,18 @@ def _pool_forward(
     return out
 
 
-@numba.njit(cache=True, nogil=True)
-def _pool_backward(
-    offsets: np.ndarray, index: np.ndarray, grad: np.ndarray, pooling: np.ndarray, channels: int
-) -> np.ndarray:
-    """∂L/∂s at the pairs (offsets (tiles, T + 1), index) from ∂L/∂pooled (features, T)."""
-    cells = pooling.shape[0]
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _pool_deltas(
+    active: tuple[np.ndarray, np.ndarray, np.ndarray],
+    grad: np.ndarray,
+    pooling: np.ndarray,
+    surrogate: np.ndarray,
+) -> None:
+    """δ = ρ(u)·∂L/∂s of the last layer at its pairs (offsets (tiles, T + 1), index, u), from
+    ∂L/∂pooled (features, T), written over u."""
+    offsets, index, u = active
+    cells, channels = pooling.shape[0], grad.shape[0] // pooling.shape[0]
     div = divisor(channels)
-    out = np.zeros(index.size, grad.dtype)
     zero = np.zeros(1, grad.dtype)[0]  # a literal 0 would make the sum float64
     for t in range(offsets.shape[1] - 1):
         for s in range(offsets.shape[0]):
@@ -204,8 +210,7 @@ def _pool_backward(
                 total = zero
                 for cell in range(cells):
                     total += pooling[cell, pixel] * grad[c * cells + cell, t]
-                out[i] = total
-    return out
+                u[i] = surrogate_pdf(u[i], surrogate) * total
 
 
 def pooling_matrix(pool: nn.Module, height: int, width: int, dtype: torch.dtype) -> np.ndarray:
@@ -280,8 +285,12 @@ class EventDrivenStack:
         # threads costs a fifth of counting the non-zeros, and the order only balances the load.
         costs = x.detach().flatten(1).sum(1).tolist()
         plan.kept = [self._kept.pop() if self._kept else {} for _ in costs]
-        plan.elements = self._map(
-            lambda b, scratch: plan.forward_element(x_np[b], _Storage(plan.kept[b], scratch)),
+        plan.elements = [_Element() for _ in costs]
+        self._stages(
+            len(plan.layers),
+            lambda b, i, scratch: plan.forward_layer(
+                plan.elements[b], i, _Storage(plan.kept[b], scratch), x_np[b]
+            ),
             costs,
         )
         self.timing = SparseTiming(forward_s=time.perf_counter() - start)
@@ -298,17 +307,6 @@ class EventDrivenStack:
             self._give_back(plan)
         return torch.from_numpy(pooled).to(device=x.device, dtype=weight.dtype), plan
 
-    def _with_scratch(self, fn: Callable[[int, Kept], Any], b: int) -> Any:
-        """fn(b, scratch buffers taken from the pool and given back after)."""
-        try:
-            scratch = self._scratch.pop()
-        except IndexError:
-            scratch = {}
-        try:
-            return fn(b, scratch)
-        finally:
-            self._scratch.append(scratch)
-
     def _give_back(self, plan: _Plan) -> None:
         """Return the plan's buffers for reuse; its lists are not to be read after this."""
         self._kept.extend(plan.kept)
@@ -319,9 +317,13 @@ class EventDrivenStack:
         start = time.perf_counter()
         grad_np = grad_pooled.detach().cpu().numpy().astype(plan.dtype)
         costs = [sum(a[1].size for a in e.active) for e in plan.elements]
-        per_element = self._map(
-            lambda b, scratch: plan.backward_element(plan.elements[b], grad_np[b], scratch), costs
+        last = len(plan.layers) - 1
+        self._stages(
+            len(plan.layers) - plan.first,
+            lambda b, k, _: plan.backward_layer(plan.elements[b], last - k, grad_np[b]),
+            costs,
         )
+        per_element = [e.grads[::-1] for e in plan.elements]
         self.timing.backward_s = time.perf_counter() - start
         self._give_back(plan)
         per_layer = np.sum([e.backward_s[::-1] for e in plan.elements], axis=0)
@@ -335,18 +337,57 @@ class EventDrivenStack:
             grads.append(torch.from_numpy(shaped).permute(3, 2, 0, 1).contiguous().to(conv.weight))
         return grads
 
-    def _map(self, fn: Callable[[int, Kept], Any], costs: Sequence[int]) -> list[Any]:
-        """[fn(0, scratch), fn(1, scratch), …] for the batch elements, on ``threads`` threads,
-        the costliest (by ``costs``) started first so that no thread is left with a long one at
-        the end; ``scratch``: buffers no other thread uses meanwhile."""
-        count = len(costs)
-        call = functools.partial(self._with_scratch, fn)
-        if self.threads == 1 or count == 1:
-            return [call(b) for b in range(count)]
-        order = sorted(range(count), key=lambda b: -costs[b])
-        with ThreadPoolExecutor(min(self.threads, count)) as workers:
-            done = dict(zip(order, workers.map(call, order), strict=True))
-        return [done[b] for b in range(count)]
+    def _stages(
+        self, stages: int, fn: Callable[[int, int, Kept], None], costs: Sequence[float]
+    ) -> None:
+        """fn(b, k, scratch) for every batch element b and stage k < ``stages``, stage k of an
+        element after its stage k − 1, on ``threads`` threads; ``scratch``: buffers no other
+        thread uses meanwhile.
+
+        A free thread takes the lowest stage that is ready, of the costliest element (by
+        ``costs``) among them. The stages of an element (its layers) must run in order, but
+        those of different elements need not: taken by whole elements, two threads ended up to
+        a fifth of a pass apart (the last element's layers ran alone); taken by stages, what is
+        left at the end are the short last stages of a few elements.
+        """
+        order = sorted(range(len(costs)), key=lambda b: -costs[b])
+        ready = [(0, rank, b) for rank, b in enumerate(order)]  # a heap
+        remaining = [stages * len(order)]
+        failed: list[BaseException] = []
+        cond = threading.Condition()
+
+        def work() -> None:
+            scratch = self._scratch.pop() if self._scratch else {}
+            try:
+                while True:
+                    with cond:
+                        cond.wait_for(lambda: ready or not remaining[0] or failed)
+                        if failed or not ready:
+                            return
+                        k, rank, b = heapq.heappop(ready)
+                    try:
+                        fn(b, k, scratch)
+                    except BaseException as error:
+                        with cond:
+                            failed.append(error)
+                            ready.clear()
+                            cond.notify_all()
+                        raise
+                    with cond:
+                        remaining[0] -= 1
+                        if k + 1 < stages:
+                            heapq.heappush(ready, (k + 1, rank, b))
+                        cond.notify_all()
+            finally:
+                self._scratch.append(scratch)
+
+        threads = min(self.threads, len(order))
+        if threads == 1:
+            work()
+            return
+        with ThreadPoolExecutor(threads) as workers:
+            for done in [workers.submit(work) for _ in range(threads)]:
+                done.result()
 
 
 class _EventDrivenFunction(torch.autograd.Function):
@@ -403,42 +444,49 @@ class _Plan:
         """Forward pass of one (C, H, W, T) input; keeps each layer's input and active pairs (in
         ``storage``: buffers of earlier steps to reuse, or new ones)."""
         storage = storage or _Storage({}, {})
-        offsets, index, values = dense_to_lists(np.ascontiguousarray(x))
-        spikes: Lists = (offsets, index, values.astype(self.dtype))
         element = _Element()
-        for i, layer in enumerate(self.layers):
-            element.inputs.append(spikes)
-            start = time.thread_time()
-            spikes, active = layer.forward(spikes, i >= self.first, storage, f"layer{i}")
-            element.forward_s.append(time.thread_time() - start)
-            element.active.append(active)
-        element.pooled = _pool_forward(spikes[0], spikes[1], self.pooling, self.channels)
+        for i in range(len(self.layers)):
+            self.forward_layer(element, i, storage, x)
         return element
 
-    def backward_element(
-        self,
-        element: _Element,
-        grad_pooled: np.ndarray,
-        scratch: Kept,
-    ) -> list[np.ndarray]:
-        """Weight gradients (kh·kw, C_in, C_out) of layers ``first`` … last for one element;
-        ``scratch``: buffers of the thread (:attr:`_Storage.scratch`), reused."""
-        act_off, act_idx, _ = element.active[-1]
-        grad_s = _pool_backward(act_off, act_idx, grad_pooled, self.pooling, self.channels)
-        grads = []
-        empty = np.empty(0, self.dtype)
+    def forward_layer(self, element: _Element, i: int, storage: _Storage, x: np.ndarray) -> None:
+        """Layer i of :meth:`forward_element` (layers 0 … i − 1 done): the input's lists come
+        from ``x`` before the first layer, the pooled spikes after the last."""
+        if i == 0:
+            offsets, index, values = dense_to_lists(np.ascontiguousarray(x))
+            element.inputs.append((offsets, index, values.astype(self.dtype)))
+        start = time.thread_time()
+        spikes, active = self.layers[i].forward(
+            element.inputs[i], i >= self.first, storage, f"layer{i}"
+        )
+        element.forward_s.append(time.thread_time() - start)
+        element.active.append(active)
+        if i + 1 < len(self.layers):
+            element.inputs.append(spikes)
+        else:
+            element.pooled = _pool_forward(spikes[0], spikes[1], self.pooling, self.channels)
+
+    def backward_element(self, element: _Element, grad_pooled: np.ndarray) -> list[np.ndarray]:
+        """Weight gradients (kh·kw, C_in, C_out) of layers ``first`` … last for one element; the
+        element's active potentials are overwritten with δ."""
         for i in range(len(self.layers) - 1, self.first - 1, -1):
-            layer = self.layers[i]
-            start = time.thread_time()
-            act_off, act_idx, _ = element.active[i]
-            below = element.active[i - 1][:2] if i > self.first else (act_off, act_idx[:0])
-            # ∂L/∂s of the layer below is read by the next call while it writes its own.
-            key = f"backward{i % 2}"
-            (grad_w, grad_s), scratch[key] = layer_backward(
-                element.active[i], grad_s, layer.surrogate, layer.alpha, layer.taps,
-                element.inputs[i], layer.weight, layer.fan, layer.out_pixels, below,
-                _taken(scratch, key, (empty, empty)),
-            )  # fmt: skip
-            grads.append(grad_w)
-            element.backward_s.append(time.thread_time() - start)
-        return grads[::-1]
+            self.backward_layer(element, i, grad_pooled)
+        return element.grads[::-1]
+
+    def backward_layer(self, element: _Element, i: int, grad_pooled: np.ndarray) -> None:
+        """Layer i of :meth:`backward_element` (layers above it done): its weight gradient, and
+        the δ of the layer below over their potentials (of the last layer first, from
+        ∂L/∂pooled)."""
+        layer = self.layers[i]
+        start = time.thread_time()
+        if i == len(self.layers) - 1:
+            _pool_deltas(element.active[i], grad_pooled, self.pooling, layer.surrogate)
+        lower = max(i - 1, 0)  # the layer below, whose δ are wanted above ``first``
+        wanted = i > self.first
+        below = element.active[lower] if wanted else tuple(a[:0] for a in element.active[i])
+        grad_w = layer_backward(
+            element.active[i], layer.alpha, layer.taps, element.inputs[i], layer.weight,
+            layer.fan, layer.out_pixels, (below, self.layers[lower].surrogate),
+        )  # fmt: skip
+        element.grads.append(grad_w)
+        element.backward_s.append(time.thread_time() - start)

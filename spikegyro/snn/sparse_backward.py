@@ -17,8 +17,10 @@ those δ alone, in reverse time (no gradient flows through the refractory feedba
   value) at step t and every live output pixel it reaches: the transpose of the forward scatter,
   from sparse inputs only;
 - input gradient: ∂L/∂s_in[t] = convᵀ(∂L/∂z[t]), evaluated only at the pairs of the layer below
-  that lie within *its* support (elsewhere its ρ is 0 and the value is never used); the pairs of
-  one input pixel share their targets.
+  that lie within *its* support (elsewhere its ρ is 0 and the value is never used), and turned
+  at once into that layer's δ = ρ(u)·∂L/∂s_in, written over the potentials u the forward pass
+  recorded (so the backward pass needs no buffers of its own per pair); the pairs of one input
+  pixel share their targets.
 
 Layouts as in :mod:`spikegyro.snn.sparse_forward` (channels-last flat indices, CSR by step).
 Sums run in any order (``fastmath``): they are not compared with a threshold.
@@ -29,21 +31,16 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from spikegyro.snn.sparse_forward import divisor, fit, pixel_group, quotient
+from spikegyro.snn.sparse_forward import divisor, pixel_group, quotient
 
 _FUTURE = np.iinfo(np.int64).max
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _deltas(
-    act_u: np.ndarray, grad_s: np.ndarray, surrogate: np.ndarray, out: np.ndarray
-) -> np.ndarray:
-    """δ = ρ(u)·∂L/∂s at the recorded pairs, into ``out``; surrogate = [θ, scale_rho/θ,
-    −1/(tau_rho·θ)]."""
-    theta, height, slope = surrogate[0], surrogate[1], surrogate[2]
-    for j in range(act_u.size):
-        out[j] = height * np.exp(slope * abs(act_u[j] - theta)) * grad_s[j]
-    return out
+def surrogate_pdf(u: float, surrogate: np.ndarray) -> float:
+    """ρ(u) = scale_rho/θ·exp(−|u − θ|/(tau_rho·θ)); surrogate = [θ, scale_rho/θ,
+    −1/(tau_rho·θ)] (potential units)."""
+    return surrogate[1] * np.exp(surrogate[2] * abs(u - surrogate[0]))
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -138,25 +135,29 @@ def _weight_grad_at(
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _input_grad_at(
-    out: np.ndarray,
+def _input_deltas_at(
     weight: np.ndarray,
     grad_z: np.ndarray,
     live: np.ndarray,
     t: int,
-    below: tuple[np.ndarray, np.ndarray],
+    below: tuple[np.ndarray, np.ndarray, np.ndarray],
+    surrogate: np.ndarray,
     fan: tuple[np.ndarray, np.ndarray],
 ) -> None:
-    """out[j] = convᵀ(∂L/∂z[t])[index[j]] for the pairs of the layer below at step t (offsets
-    (tiles, T + 1): a range per tile)."""
-    offsets, index = below
+    """δ = ρ(u)·convᵀ(∂L/∂z[t])[index[j]] of the layer below at its pairs of step t (offsets
+    (tiles, T + 1): a range per tile), written over their potentials u; surrogate: the layer
+    below's (:func:`surrogate_pdf`)."""
+    offsets, index, u = below
     cin, cout = weight.shape[1], weight.shape[2]
     div = divisor(cin)
-    zero = np.zeros(1, out.dtype)[0]  # a literal 0 would make the sum float64
+    zero = np.zeros(1, u.dtype)[0]  # a literal 0 would make the sums float64
+    grad_s = np.empty(cin, u.dtype)  # ∂L/∂s of one pixel's pairs (at most one per channel)
     for s in range(offsets.shape[0]):
         i, stop = offsets[s, t], offsets[s, t + 1]
         while i < stop:
             pixel_in, end = pixel_group(index, i, stop, cin, div)
+            for e in range(end - i):
+                grad_s[e] = zero
             for k in range(fan[0][pixel_in], fan[0][pixel_in + 1]):
                 pixel, tap = fan[1][0, k], fan[1][1, k]
                 if live[pixel] >= t:
@@ -167,53 +168,44 @@ def _input_grad_at(
                     total = zero
                     for o in range(cout):
                         total += w[o] * grad[o]
-                    out[e] += total
+                    grad_s[e - i] += total
+            for e in range(i, end):
+                u[e] = surrogate_pdf(u[e], surrogate) * grad_s[e - i]
             i = end
 
 
 @numba.njit(cache=True, nogil=True)
 def layer_backward(
     active: tuple[np.ndarray, np.ndarray, np.ndarray],
-    grad_s: np.ndarray,
-    surrogate: np.ndarray,
     alpha: np.ndarray,
     taps: int,
     inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
     weight: np.ndarray,
     fan: tuple[np.ndarray, np.ndarray],
     out_pixels: int,
-    below: tuple[np.ndarray, np.ndarray],
-    storage: tuple[np.ndarray, np.ndarray],
-) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
-    """Weight gradient of one layer and ∂L/∂s of the layer below at its active pairs.
+    below: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+) -> np.ndarray:
+    """Weight gradient of one layer, and δ of the layer below at its active pairs.
 
     Args:
-        active: (offsets (tiles, T + 1), flat indices, potentials u) of this layer's pairs
-            within the surrogate's support, as :func:`spikegyro.snn.sparse_forward.layer_forward`
-            gives them; grad_s: ∂L/∂s at those pairs (aligned with the indices).
-        surrogate: [θ, scale_rho/θ, −1/(tau_rho·θ)] in the weight's dtype: ρ(u) =
-            scale_rho/θ·exp(−|u − θ|/(tau_rho·θ)) at the recorded pairs.
+        active: (offsets (tiles, T + 1), flat indices, δ) of this layer's pairs within the
+            surrogate's support, as :func:`spikegyro.snn.sparse_forward.layer_forward` gives
+            them, with δ = ∂L/∂u written over their potentials.
         alpha, taps: the PSP kernel ε[k] = c·k·pᵏ, k < L = ``taps`` steps
             (:func:`spikegyro.snn.sparse_forward.alpha_constants`).
         inputs: (offsets, flat indices, values) of this layer's input, as in the forward pass.
         weight: (kh·kw, C_in, C_out); fan, out_pixels: as in the forward pass.
-        below: (offsets (tiles, T + 1), flat indices) of the active pairs of the layer below
-            (the input side); an empty index list when its gradient is not wanted.
-        storage: buffers in the weight's dtype that the caller keeps between calls, for δ and
-            for ∂L/∂s_in (as in the forward pass: fresh memory costs page faults).
+        below: ((offsets (tiles, T + 1), flat indices, potentials u) of the active pairs of the
+            layer below (the input side), the layer below's surrogate (:func:`surrogate_pdf`)):
+            its δ are written over u; an empty index list when they are not wanted.
 
     Returns:
-        ((∂L/∂W (kh·kw, C_in, C_out), ∂L/∂s_in at the pairs of ``below``: a view of the second
-        buffer), the buffers to keep (larger copies where they were too small)).
+        ∂L/∂W (kh·kw, C_in, C_out).
     """
-    act_offsets, act_index, act_u = active
+    act_offsets, act_index, delta = active
     steps = act_offsets.shape[1] - 1
     cout = weight.shape[2]
-    storage = (fit(storage[0], act_u.size), fit(storage[1], below[1].size))
-    delta = _deltas(act_u, grad_s, surrogate, storage[0])
     grad_w = np.zeros_like(weight)
-    grad_below = storage[1][: below[1].size]
-    grad_below[:] = 0.0
     state = np.zeros((2, out_pixels * cout), weight.dtype)
     grad_z = np.zeros(out_pixels * cout, weight.dtype)
     # Per pixel, the step at which its last δ leaves the kernel (the state is cleared there);
@@ -228,6 +220,6 @@ def layer_backward(
                    t - taps)  # fmt: skip
         _adjoint_step(state, grad_z, live, t, alpha)
         _weight_grad_at(grad_w, grad_z, live, t, inputs, fan)
-        if below[1].size:
-            _input_grad_at(grad_below, weight, grad_z, live, t, below, fan)
-    return (grad_w, grad_below), storage
+        if below[0][1].size:
+            _input_deltas_at(weight, grad_z, live, t, below[0], below[1], fan)
+    return grad_w
