@@ -8,7 +8,8 @@ pairs within the surrogate's support (:mod:`spikegyro.snn.sparse_backward`). Its
 pooled last-layer spikes; the dense readout and the loss downstream are the model's own torch
 code.
 
-Each batch element runs on one thread (Numba releases the GIL); ``threads`` elements run at once.
+The layers of the batch elements run as tasks on ``threads`` threads (Numba releases the GIL),
+each element's layers in order.
 Work and memory grow with the number of spikes and active pairs, not with the number of neurons
 times steps. Float32 weights run in float32 (the comparisons with θ as the batch path makes
 them), float64 weights in float64.
@@ -127,8 +128,8 @@ class _Layer:
 class _Storage:
     """Where the pass of one batch element writes its lists: buffers kept from step to step,
     since writing fresh memory costs page faults, a large share of the pass. ``kept`` holds what
-    the backward pass reads (one per batch element), ``scratch`` what is used up within the
-    element's forward or backward pass (one per thread)."""
+    the backward pass reads (one per batch element), ``scratch`` what is used up within one
+    layer's pass (one per thread)."""
 
     kept: Kept
     scratch: Kept
@@ -164,6 +165,7 @@ class _Element:
     """What the forward pass of one batch element keeps for its backward pass."""
 
     inputs: list[Lists] = field(default_factory=list)  # the input of each layer
+    # per layer (offsets, indices, u) of the pairs in the support; δ over u after the backward
     active: list[tuple[np.ndarray, ...]] = field(default_factory=list)
     pooled: np.ndarray | None = None  # (features, T)
     forward_s: list[float] = field(default_factory=list)  # per layer
@@ -250,7 +252,7 @@ class EventDrivenStack:
         convs: spiking conv layers (no padding), each with ``params.rho_cut`` above
             exp(−1/tau_rho) (so that the support excludes rest, u = 0).
         pool: linear spatial pooling of the last layer's spikes (GASP or RegionPool).
-        threads: batch elements processed at once, one per thread.
+        threads: threads that run the layers of the batch elements (:meth:`_stages`).
     """
 
     def __init__(self, convs: Sequence[SRMConv], pool: nn.Module, threads: int = 1) -> None:
