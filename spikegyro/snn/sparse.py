@@ -384,7 +384,7 @@ class EventDrivenStack:
                 self._scratch.append(scratch)
 
         threads = min(self.threads, len(order))
-        if threads == 1:
+        if threads <= 1:
             work()
             return
         with ThreadPoolExecutor(threads) as workers:
