@@ -354,29 +354,31 @@ class EventDrivenStack:
         """
         order = sorted(range(len(costs)), key=lambda b: -costs[b])
         ready = [(0, rank, b) for rank, b in enumerate(order)]  # a heap
-        remaining = [stages * len(order)]
-        failed: list[BaseException] = []
+        remaining, failed = stages * len(order), False
         cond = threading.Condition()
 
+        def wake() -> bool:  # a task is ready, or there will be none
+            return bool(ready) or not remaining or failed
+
         def work() -> None:
+            nonlocal remaining, failed
             scratch = self._scratch.pop() if self._scratch else {}
             try:
                 while True:
                     with cond:
-                        cond.wait_for(lambda: ready or not remaining[0] or failed)
+                        cond.wait_for(wake)
                         if failed or not ready:
                             return
                         k, rank, b = heapq.heappop(ready)
                     try:
                         fn(b, k, scratch)
-                    except BaseException as error:
+                    except BaseException:
                         with cond:
-                            failed.append(error)
-                            ready.clear()
+                            failed = True
                             cond.notify_all()
                         raise
                     with cond:
-                        remaining[0] -= 1
+                        remaining -= 1
                         if k + 1 < stages:
                             heapq.heappush(ready, (k + 1, rank, b))
                         cond.notify_all()
