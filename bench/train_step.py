@@ -3,9 +3,12 @@
 One step = forward + backward + Adam update of SNN-6 (240x180, T = 100 ms, batch 8, the shipped
 weights, surrogate cut 0.05 on both paths so that their gradients agree) on realistic windows:
 half simulated with the ideal sensor, half with the ``davis240c`` preset (seeded, the same every
-run). Both paths run in one process, their steps interleaved (so both see the same background
-load), on 1 and 2 threads; the time is the median of ``--repeats`` steps after one warm-up step
-each, divided by the batch, as wall time and as the process's CPU time, user and system apart
+run). Each path gets its input as ``spikegyro train`` gives it: the dense path the dense spike
+tensor, the engine the same spikes as a sparse tensor binned from the windows' events (which it
+reads without a dense copy; binning is outside both steps). Both paths run in one process, their
+steps interleaved (so both see the same background load), on 1 and 2 threads; the time is the
+median of ``--repeats`` steps after one warm-up step each, divided by the batch, as wall time and
+as the process's CPU time, user and system apart
 (system time is mostly the kernel mapping and zeroing the pages of fresh allocations: the dense
 path allocates its activations anew every step, and what that costs varies with the host's
 memory state, so the user-time ratio is printed too). Torch runs each path as ``spikegyro
@@ -41,7 +44,14 @@ from spikegyro.models.registry import PRETRAINED_SNN6, load_checkpoint
 from spikegyro.models.snn6 import SNN6
 from spikegyro.sim.dataset import SimConfig, simulate_sequence
 from spikegyro.snn.sparse import _Plan
-from spikegyro.train.data import encode_target, encode_window, sequence_windows
+from spikegyro.train.data import (
+    collate_events,
+    encode_batch,
+    encode_target,
+    encode_window,
+    sequence_windows,
+    window_events,
+)
 from spikegyro.train.loss import angular_velocity_loss
 from spikegyro.train.throughput import train_step
 
@@ -58,17 +68,27 @@ def _status_mib(field: str) -> float:
     return int(line.split()[1]) / 1024.0
 
 
-def windows(seed: int = 7) -> tuple[torch.Tensor, torch.Tensor]:
-    """BATCH windows of 100 ms at 240x180: half ideal, half davis240c simulated sequences."""
+Inputs = dict[str, torch.Tensor]
+
+
+def windows(seed: int = 7) -> tuple[Inputs, torch.Tensor]:
+    """BATCH windows of 100 ms at 240x180, half ideal, half davis240c simulated sequences: the
+    input of each path ("dense": (N, 2, H, W, T); "sparse": the same spikes as a sparse tensor)
+    and the target."""
     picked = []
     for sensor in ("ideal", "davis240c"):
         config = SimConfig(duration_ms=STEPS, sensor=sensor)
         for i in range(BATCH // 2):
             recording = simulate_sequence(config, i, seed=seed)
             picked.append(sequence_windows(recording, STEPS, f"{sensor}:{i}")[0])
-    x = torch.stack([encode_window(w, SPEC) for w in picked])
     y = torch.stack([encode_target(w, SPEC) for w in picked])
-    return x, y
+    events, _ = collate_events([(window_events(w, SPEC), y[0]) for w in picked])
+    inputs = {
+        "dense": torch.stack([encode_window(w, SPEC) for w in picked]),
+        "sparse": encode_batch(events, SPEC, sparse=True),
+    }
+    assert torch.equal(inputs["sparse"].to_dense(), inputs["dense"])
+    return inputs, y
 
 
 def model(compute: str, threads: int) -> SNN6:
@@ -79,7 +99,7 @@ def model(compute: str, threads: int) -> SNN6:
     return net
 
 
-def make_step(compute: str, threads: int, x, y) -> tuple[Callable[[], None], SNN6]:
+def make_step(compute: str, threads: int, x: Inputs, y) -> tuple[Callable[[], None], SNN6]:
     net = model(compute, threads)
     optimizer = torch.optim.Adam(net.parameters(), lr=1e-5)
     # As `spikegyro train` runs each path: torch's own threads are the engine's for the dense
@@ -88,12 +108,12 @@ def make_step(compute: str, threads: int, x, y) -> tuple[Callable[[], None], SNN
 
     def step() -> None:
         torch.set_num_threads(torch_threads)
-        train_step(net, optimizer, x, y, START)
+        train_step(net, optimizer, x[compute], y, START)
 
     return step, net
 
 
-def step_times(x, y, threads: int, repeats: int) -> dict[str, tuple[float, float, float]]:
+def step_times(x: Inputs, y, threads: int, repeats: int) -> dict[str, tuple[float, float, float]]:
     """Median (wall, user CPU, system CPU) seconds per window of each path, steps interleaved,
     one warm-up step each. CPU time (all threads of the process) does not count waiting for a
     busy core; system time is mostly the kernel mapping and zeroing freshly allocated pages."""
@@ -129,7 +149,7 @@ def peak_memory(compute: str, threads: int) -> dict[str, float]:
     return {"peak_mib": peak, "growth_mib": peak - before}
 
 
-def gradient_check(x, y) -> dict:
+def gradient_check(inputs: Inputs, y) -> dict:
     """Per-tensor relative gradient difference and flipped spikes per layer (float32)."""
     grads = {}
     for compute in ("dense", "sparse"):
@@ -139,10 +159,11 @@ def gradient_check(x, y) -> dict:
         # The engine's second step is profiled: warm, as training runs it.
         for _ in range(2 if compute == "sparse" else 1):
             net.zero_grad()
-            angular_velocity_loss(net(x), y, START).backward()
+            angular_velocity_loss(net(inputs[compute]), y, START).backward()
         grads[compute] = {n: p.grad.clone() for n, p in net.named_parameters()}
         timing = net.event_engine.timing if compute == "sparse" else None
     rel = {n: float((grads["sparse"][n] - g).norm() / g.norm()) for n, g in grads["dense"].items()}
+    x = inputs["dense"]
     torch.set_num_threads(2)
     with torch.no_grad():
         _, dense_spikes = net.forward_with_spikes(x)
@@ -177,7 +198,7 @@ def main() -> None:
 
     load_before = os.getloadavg()[0]
     x, y = windows()
-    density = float(x.mean())
+    density = float(x["dense"].mean())
     rows = []
     for threads in args.threads:
         seconds = step_times(x, y, threads, args.repeats)

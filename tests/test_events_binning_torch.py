@@ -94,6 +94,9 @@ def test_event_batch_encodes_exactly_like_the_dense_encoder(representation, scal
     else:
         assert torch.equal(x, reference)
     assert torch.equal(y, reference_y)
+    if representation == "spikes":  # the event-driven CPU engine's input: a sparse tensor
+        sparse, _ = device_batch(batch, stacked_targets, spec, "cpu", sparse=True)
+        assert sparse.is_sparse and torch.equal(sparse.to_dense(), reference.cpu())
 
 
 def test_event_lists_are_small_and_relative_to_the_window():
@@ -129,6 +132,25 @@ def test_spike_tensor_is_time_major_and_drops_events_outside_the_bins():
         torch.tensor([0, 0]), num_windows=1, height=1, width=2, num_bins=1, count=True,
     )  # fmt: skip
     assert counted[0, 1, 0, 1, 0] == 2
+
+
+@pytest.mark.parametrize("count", [False, True])
+def test_sparse_spike_tensor_holds_the_dense_ones_entries_in_the_engines_order(count):
+    """Events in any order, repeats, dropped ones: the same tensor as :func:`spike_tensor`, its
+    entries stored by (window, step, pixel, channel), each once."""
+    rng = np.random.default_rng(4)
+    n, windows, height, width, bins = 5000, 3, 5, 7, 6
+    x, y = torch.from_numpy(rng.integers(0, width, n)), torch.from_numpy(rng.integers(0, height, n))
+    t, p = torch.from_numpy(rng.integers(-300, 6300, n)), torch.from_numpy(rng.integers(0, 2, n))
+    window = torch.from_numpy(rng.integers(0, windows, n))
+    shape = dict(num_windows=windows, height=height, width=width, num_bins=bins, count=count)
+    dense = binning_torch.spike_tensor(x, y, t, p, window, **shape)
+    sparse = binning_torch.sparse_spike_tensor(x, y, t, p, window, **shape)
+    assert sparse.is_sparse and torch.equal(sparse.to_dense(), dense)
+    n_, c, yy, xx, k = sparse._indices()
+    key = (((n_ * bins + k) * height + yy) * width + xx) * 2 + c
+    assert bool((key[1:] > key[:-1]).all())  # strictly increasing: sorted, no repeats
+    assert sparse._nnz() == int((dense != 0).sum())
 
 
 def test_random_augmentation_of_event_lists_matches_dense(monkeypatch):

@@ -18,7 +18,14 @@ from spikegyro.models.snn6 import READOUT, SNN6
 from spikegyro.snn.functional import fire, psp, surrogate_gradient, surrogate_half_width
 from spikegyro.snn.layers import GASP, SRMConv, SRMDense, SRMParams
 from spikegyro.snn.sparse import EventDrivenStack, _Plan
-from spikegyro.snn.sparse_forward import _threshold, divisor, fanout, quotient
+from spikegyro.snn.sparse_forward import (
+    _threshold,
+    coo_to_lists,
+    dense_to_lists,
+    divisor,
+    fanout,
+    quotient,
+)
 from spikegyro.train.loss import angular_velocity_loss
 
 CUT = 0.05
@@ -73,6 +80,50 @@ def test_snn6_gradients_match_autograd_in_float64(freeze):
     for name, grad in dense.items():
         assert grad.norm() > 0, name
         assert relative(sparse[name], grad) < 1e-9, name
+
+
+def test_a_sparse_input_gives_the_loss_and_gradients_of_its_dense_tensor():
+    """The engine reads a sparse COO input in any order of its entries (coalesced, or with an
+    entry split in two), and the batch path takes it too: the same loss and gradients as the
+    dense tensor's through autograd."""
+    model = exact_snn6()
+    x = random_window((2, 2, 72, 96, 30), 0.05) * 2.0
+    y = torch.randn(2, 3, 30, dtype=torch.float64, generator=torch.Generator().manual_seed(4))
+    model.use_event_engine(None)
+    loss, reference = gradients(model, x, y, start=10)
+    coalesced = x.to_sparse()
+    indices, values = coalesced.indices(), coalesced.values()
+    halves = torch.cat([values[:7] / 2, values[7:], values[:7] / 2])
+    # the first 7 entries as two halves each, the second after all the others
+    split = torch.sparse_coo_tensor(
+        torch.cat([indices, indices[:, :7]], 1), halves, x.shape, check_invariants=True
+    )
+    for sparse in (coalesced, split):
+        for threads in (None, 2):
+            model.use_event_engine(threads)
+            loss_s, grads = gradients(model, sparse, y, start=10)
+            assert loss_s == pytest.approx(loss, rel=1e-12)
+            for name, grad in reference.items():
+                assert relative(grads[name], grad) < 1e-9, name
+
+
+def test_coo_lists_equal_the_dense_lists_of_each_element():
+    generator = torch.Generator().manual_seed(5)
+    x = random_window((3, 2, 5, 4, 6), 0.3) * torch.rand(3, 2, 5, 4, 6, generator=generator)
+    x[1] = 0.0  # an element without input
+    shuffled = x.to_sparse()
+    order = torch.randperm(shuffled._nnz(), generator=generator)
+    shuffled = torch.sparse_coo_tensor(shuffled.indices()[:, order], shuffled.values()[order],
+                                       x.shape, check_invariants=True)  # fmt: skip
+    offsets, index, values = coo_to_lists(
+        shuffled._indices().numpy(), shuffled._values().numpy(), tuple(x.shape)
+    )
+    for b in range(3):
+        lo, hi = offsets[b, 0], offsets[b, -1]
+        expected = dense_to_lists(np.ascontiguousarray(x[b].numpy()))
+        np.testing.assert_array_equal(offsets[b] - lo, expected[0])
+        np.testing.assert_array_equal(index[lo:hi], expected[1])
+        np.testing.assert_array_equal(values[lo:hi], expected[2])
 
 
 def test_grid_readout_and_event_counts_match_autograd():

@@ -30,6 +30,26 @@ def test_sparse_and_dense_runs_share_checkpoints_and_freeze(dataset, tmp_path): 
     assert not torch.equal(before["conv3.weight"], after["conv3.weight"])
 
 
+def test_the_engine_trains_on_event_batches_as_on_dense_ones(dataset, tmp_path):  # noqa: F811
+    """With --compute sparse the loop ships events and bins them into a sparse tensor: the
+    engine reads the same spikes as from the dense tensor, so the runs end with the same
+    weights, bit for bit."""
+    runs = {}
+    for path in ("auto", "dense"):
+        config = tiny_config(dataset, tmp_path / path, compute="sparse", data_path=path,
+                             iterations=2, val_every=2, threads=2)  # fmt: skip
+        runs[path] = train(config, progress=False)
+    assert (runs["auto"].data_path, runs["dense"].data_path) == ("events", "dense")
+    events, dense = (
+        state_of(tmp_path / "auto" / "last.pt"),
+        state_of(tmp_path / "dense" / "last.pt"),
+    )
+    assert events.keys() == dense.keys()
+    for name, tensor in dense.items():
+        assert torch.equal(events[name], tensor), name
+    assert runs["auto"].last_loss == runs["dense"].last_loss
+
+
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [

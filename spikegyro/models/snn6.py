@@ -239,9 +239,12 @@ class SNN6(nn.Module):
     def _run(self, x: torch.Tensor, keep_spikes: bool) -> tuple[torch.Tensor, list[torch.Tensor]]:
         self._check_input(x)
         spikes = x if x.is_floating_point() else x.to(self.fc.weight.dtype)
-        spikes = self.with_log_polar(spikes)
         engine = self.event_engine
-        if engine is not None and not keep_spikes and x.device.type == "cpu":
+        events = engine is not None and not keep_spikes and x.device.type == "cpu"
+        if spikes.is_sparse and not (events and not self.log_polar):
+            spikes = spikes.to_dense()  # only the event-driven engine reads a sparse input
+        spikes = self.with_log_polar(spikes)
+        if events:
             return self.fc(engine.pooled(spikes)), []
         per_layer = []
         for conv in self.convs:
@@ -255,7 +258,7 @@ class SNN6(nn.Module):
         return self._run(x, keep_spikes=True)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """ω (N, 3, T) in rad/s from input spikes (N, 2, H, W, T)."""
+        """ω (N, 3, T) in rad/s from input spikes (N, 2, H, W, T), dense or sparse COO."""
         return self._run(x, keep_spikes=False)[0]
 
 

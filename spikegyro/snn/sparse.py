@@ -36,6 +36,7 @@ from spikegyro.snn.sparse_backward import layer_backward, surrogate_pdf
 from spikegyro.snn.sparse_forward import (
     Buffers,
     alpha_constants,
+    coo_to_lists,
     dense_to_lists,
     divisor,
     fanout,
@@ -215,6 +216,22 @@ def _pool_deltas(
                 u[i] = surrogate_pdf(u[i], surrogate) * total
 
 
+def _element_inputs(x: torch.Tensor) -> tuple[list[np.ndarray | Lists], list[float]]:
+    """Each batch element's input, as the engine's lists for a sparse (N, C, H, W, T) tensor or
+    as a dense (C, H, W, T) array, and its cost: its number of input entries, or its sum (which
+    orders the elements as well, and costs less than counting a dense tensor's non-zeros)."""
+    x = x.detach().cpu()
+    if not x.is_sparse:
+        return list(x.numpy()), x.flatten(1).sum(1).tolist()
+    offsets, index, values = coo_to_lists(
+        x._indices().numpy(), x._values().numpy(), tuple(int(n) for n in x.shape)
+    )
+    lists: list[np.ndarray | Lists] = [
+        (o - o[0], index[o[0] : o[-1]], values[o[0] : o[-1]]) for o in offsets
+    ]
+    return lists, [float(o[-1] - o[0]) for o in offsets]
+
+
 def pooling_matrix(pool: nn.Module, height: int, width: int, dtype: torch.dtype) -> np.ndarray:
     """(cells, height·width) weights of a linear spatial pooling module (GASP, RegionPool),
     read off its response to one-hot maps."""
@@ -271,7 +288,8 @@ class EventDrivenStack:
         return {**self.__dict__, "_kept": [], "_scratch": []}
 
     def pooled(self, x: torch.Tensor) -> torch.Tensor:
-        """Pooled last-layer spikes (N, features, T) of input (N, C, H, W, T) (time last, 1 ms)."""
+        """Pooled last-layer spikes (N, features, T) of input (N, C, H, W, T) (time last, 1 ms),
+        dense or a sparse COO tensor (the engine reads its entries, never a dense copy)."""
         weights = [conv.weight for conv in self.convs]
         if torch.is_grad_enabled() and any(w.requires_grad for w in weights):
             return _EventDrivenFunction.apply(self, x, *weights)
@@ -282,16 +300,13 @@ class EventDrivenStack:
         dtype = np.float64 if weight.dtype == torch.float64 else np.float32
         plan = _Plan.of(self.convs, self.pool, tuple(x.shape[2:4]), dtype, record)
         start = time.perf_counter()
-        x_np = x.detach().cpu().numpy()
-        # The input's sum (its event count) orders the elements by cost: a torch sum on all
-        # threads costs a fifth of counting the non-zeros, and the order only balances the load.
-        costs = x.detach().flatten(1).sum(1).tolist()
+        sources, costs = _element_inputs(x)
         plan.kept = [self._kept.pop() if self._kept else {} for _ in costs]
         plan.elements = [_Element() for _ in costs]
         self._stages(
             len(plan.layers),
             lambda b, i, scratch: plan.forward_layer(
-                plan.elements[b], i, _Storage(plan.kept[b], scratch), x_np[b]
+                plan.elements[b], i, _Storage(plan.kept[b], scratch), sources[b]
             ),
             costs,
         )
@@ -444,21 +459,26 @@ class _Plan:
     def channels(self) -> int:
         return self.layers[-1].weight.shape[2]
 
-    def forward_element(self, x: np.ndarray, storage: _Storage | None = None) -> _Element:
-        """Forward pass of one (C, H, W, T) input; keeps each layer's input and active pairs (in
-        ``storage``: buffers of earlier steps to reuse, or new ones)."""
+    def forward_element(self, x: np.ndarray | Lists, storage: _Storage | None = None) -> _Element:
+        """Forward pass of one (C, H, W, T) input (or its lists); keeps each layer's input and
+        active pairs (in ``storage``: buffers of earlier steps to reuse, or new ones)."""
         storage = storage or _Storage({}, {})
         element = _Element()
         for i in range(len(self.layers)):
             self.forward_layer(element, i, storage, x)
         return element
 
-    def forward_layer(self, element: _Element, i: int, storage: _Storage, x: np.ndarray) -> None:
+    def forward_layer(
+        self, element: _Element, i: int, storage: _Storage, x: np.ndarray | Lists
+    ) -> None:
         """Layer i of :meth:`forward_element` (layers 0 … i − 1 done): the input's lists come
-        from ``x`` before the first layer, the pooled spikes after the last."""
+        from ``x`` (dense (C, H, W, T), or its lists) before the first layer, the pooled spikes
+        after the last."""
         if i == 0:
-            offsets, index, values = dense_to_lists(np.ascontiguousarray(x))
-            element.inputs.append((offsets, index, values.astype(self.dtype)))
+            offsets, index, values = (
+                x if isinstance(x, tuple) else dense_to_lists(np.ascontiguousarray(x))
+            )
+            element.inputs.append((offsets, index, values.astype(self.dtype, copy=False)))
         start = time.thread_time()
         spikes, active = self.layers[i].forward(
             element.inputs[i], i >= self.first, storage, f"layer{i}"

@@ -99,6 +99,48 @@ def dense_to_lists(
 
 
 @numba.njit(cache=True, nogil=True)
+def coo_to_lists(
+    indices: np.ndarray, values: np.ndarray, shape: tuple[int, int, int, int, int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Input lists of every element of a sparse (N, C, H, W, T) tensor, from its COO indices
+    (5, n) and values: (offsets (N, T + 1) into the shared index and value arrays, flat
+    (y·W + x)·C + c int32, values); element b's lists are ``offsets[b] − offsets[b, 0]`` and the
+    arrays' range ``offsets[b, 0]:offsets[b, T]``.
+
+    Entries already in (element, step, flat index) order, as
+    :func:`spikegyro.events.binning_torch.sparse_spike_tensor` stores them, are taken in one pass;
+    any other order is sorted first, and entries at the same index are summed (the value of an
+    uncoalesced sparse tensor). Zero values are kept (an input of 0 adds nothing).
+    """
+    elements, channels, height, width, steps = shape
+    pixels = height * width * channels
+    key = np.empty(values.size, np.int64)
+    ordered = True
+    for e in range(values.size):
+        flat = (indices[2, e] * width + indices[3, e]) * channels + indices[1, e]
+        key[e] = (indices[0, e] * steps + indices[4, e]) * pixels + flat
+        ordered = ordered and (e == 0 or key[e] > key[e - 1])
+    order = np.arange(values.size) if ordered else np.argsort(key, kind="mergesort")
+    counts = np.zeros(elements * steps + 1, np.int64)
+    index = np.empty(values.size, np.int32)
+    out = np.empty(values.size, values.dtype)
+    n = 0
+    for j in range(values.size):
+        e = order[j]
+        if n and key[e] == key[order[j - 1]]:
+            out[n - 1] += values[e]
+            continue
+        index[n], out[n] = key[e] % pixels, values[e]
+        counts[key[e] // pixels + 1] += 1
+        n += 1
+    offsets = np.cumsum(counts)
+    per_element = np.empty((elements, steps + 1), np.int64)
+    for b in range(elements):
+        per_element[b] = offsets[b * steps : (b + 1) * steps + 1]
+    return per_element, index[:n], out[:n]
+
+
+@numba.njit(cache=True, nogil=True)
 def _reach(i: int, out_size: int, kernel: int, stride: int) -> tuple[int, int]:
     """The first and last output o with 0 <= i − o·stride < kernel, clipped to the map (an
     empty range when first > last)."""

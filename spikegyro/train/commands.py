@@ -96,7 +96,8 @@ OPTION_HELP: dict[str, str] = {
     "num_workers": "DataLoader workers per process.",
     "threads": "Torch CPU threads (0 = default).",
     "device": "auto, cpu, cuda or cuda:K.",
-    "data_path": "events (binned on the device), dense, or auto (events on CUDA).",
+    "data_path": "events (binned where the model runs), dense, or auto (events on CUDA and for "
+    "the event-driven CPU engine).",
     "amp": "off, or bf16: the ANNs' forward passes in bfloat16 autocast (GPU speed).",
     "compute": "SNNs: sparse (event-driven CPU engine), dense (torch), or auto (sparse on a CPU "
     "in one process).",

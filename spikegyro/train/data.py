@@ -18,7 +18,9 @@ by :func:`encode_window` in a DataLoader worker and the stacked tensors copied t
 *events*, each window's (augmented, rescaled) events sent as an :class:`EventBatch` of flat event
 lists and binned on the device by :func:`encode_batch` (:mod:`spikegyro.events.binning_torch`):
 ~1 MB per 100 ms window instead of a 35 MB float32 spike tensor at 240x180. Both give the same
-input tensors.
+input tensors. For the event-driven CPU engine, spike batches arriving as events are binned into
+a sparse tensor instead (:func:`spikegyro.events.binning_torch.sparse_spike_tensor`), which that
+engine reads without ever making the dense one.
 """
 
 from __future__ import annotations
@@ -403,18 +405,21 @@ def collate_events(
     return EventBatch.concatenate([s[0] for s in samples]), torch.stack([s[1] for s in samples])
 
 
-def encode_batch(batch: EventBatch, input_spec: InputSpec | dict[str, Any]) -> torch.Tensor:
+def encode_batch(
+    batch: EventBatch, input_spec: InputSpec | dict[str, Any], sparse: bool = False
+) -> torch.Tensor:
     """The network inputs of a batch, binned on the batch's device.
 
     Equals ``torch.stack([encode_window(w, spec) for w in windows])`` for the windows the batch
-    was made of: spikes (N, 2, H, W, T) (time-major storage), voxel (N, S, num_bins, H, W),
-    frames (N, S, 2, H, W).
+    was made of: spikes (N, 2, H, W, T) (time-major storage; with ``sparse``, a sparse COO
+    tensor), voxel (N, S, num_bins, H, W), frames (N, S, 2, H, W).
     """
     spec = as_input_spec(input_spec)
     n, height, width = batch.num_windows, batch.height, batch.width
     window = batch.window_index()
     if spec.representation == "spikes":
-        return binning_torch.spike_tensor(
+        binned = binning_torch.sparse_spike_tensor if sparse else binning_torch.spike_tensor
+        return binned(
             batch.x, batch.y, batch.t, batch.p, window, num_windows=n, height=height,
             width=width, num_bins=spec.window_ms,
         )  # fmt: skip
@@ -435,11 +440,11 @@ def encode_batch(batch: EventBatch, input_spec: InputSpec | dict[str, Any]) -> t
     return planes.view(n, per, *planes.shape[1:])
 
 
-def events_on_device(device: torch.device | str, data_path: str) -> bool:
+def events_on_device(device: torch.device | str, data_path: str, sparse: bool = False) -> bool:
     """Whether training batches travel as event lists (``data_path`` one of DATA_PATHS):
-    ``auto`` picks them on CUDA only."""
+    ``auto`` picks them on CUDA, and for the event-driven CPU engine (``sparse``)."""
     if data_path == "auto":
-        return torch.device(device).type == "cuda"
+        return sparse or torch.device(device).type == "cuda"
     return data_path == "events"
 
 
@@ -448,12 +453,14 @@ def device_batch(
     targets: torch.Tensor,
     input_spec: InputSpec | dict[str, Any],
     device: torch.device | str,
+    sparse: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """A collated batch (dense tensors or an :class:`EventBatch`) as model input and target on
-    ``device``, shaped by :func:`model_batch`."""
+    ``device``, shaped by :func:`model_batch`; with ``sparse``, an :class:`EventBatch` of spikes
+    becomes a sparse tensor (for the event-driven CPU engine)."""
     inputs = inputs.to(device, non_blocking=True)
     if isinstance(inputs, EventBatch):
-        inputs = encode_batch(inputs, input_spec)
+        inputs = encode_batch(inputs, input_spec, sparse)
     x, y = model_batch(inputs, targets.to(device, non_blocking=True), input_spec)
     return x, cast(torch.Tensor, y)
 

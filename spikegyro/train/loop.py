@@ -336,7 +336,8 @@ def _train(
     if ctx.distributed:
         ids = [ctx.device.index] if ctx.device.type == "cuda" else None
         net = DistributedDataParallel(run.model, device_ids=ids)
-    events = events_on_device(ctx.device, config.data_path)
+    sparse = run.compute == "sparse"
+    events = events_on_device(ctx.device, config.data_path, sparse)
     samples = training_samples(config, run.spec, events=events)
     _prepare_validation(run)
     if ctx.is_main:
@@ -446,9 +447,10 @@ def _steps(
     checkpointing on the way (every process agrees on when to stop)."""
     config, ctx = run.config, run.ctx
     amp = config.amp != "off"
+    spec = loader.dataset.spec  # of the training windows (``train_window_ms`` long)
     net.train()
     for inputs, targets in loader:
-        x, y = device_batch(inputs, targets, run.spec, ctx.device)
+        x, y = device_batch(inputs, targets, spec, ctx.device, run.compute == "sparse")
         loss = train_step(net, run.optimizer, x, y, config.train_loss_start_step,
                           config.grad_clip, amp)  # fmt: skip
         run.scheduler.step()

@@ -75,8 +75,9 @@ class TrainConfig:
         threads: torch intra-op threads (0 = torch's default).
         device: "auto", "cpu", "cuda" or "cuda:K".
         data_path: how training batches reach the device: "events" (event lists, binned on the
-            device), "dense" (input tensors encoded in the DataLoader workers) or "auto"
-            (events on CUDA, dense on the CPU).
+            device; for the event-driven engine into a sparse tensor, never a dense one), "dense"
+            (input tensors encoded in the DataLoader workers) or "auto" (events on CUDA and with
+            ``compute`` sparse, dense otherwise).
         compute: how the SNNs compute a training step: "sparse" (the event-driven CPU engine,
             :mod:`spikegyro.snn.sparse`), "dense" (the batch torch path) or "auto" (sparse on a
             CPU in one process, dense on CUDA or under torchrun). The ANNs are always dense.
