@@ -128,6 +128,20 @@ class SumModel(nn.Module):
         return self.w * torch.stack([s, -s, 2 * s], dim=1)
 
 
+class EngineModel(SumModel):
+    """A model on the event-driven CPU engine: it records the layout of its inputs."""
+
+    event_engine = "engine"
+
+    def __init__(self, per_step: bool) -> None:
+        super().__init__(per_step)
+        self.layouts: list[torch.layout] = []
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        self.layouts.append(x.layout)
+        return super().forward(x.to_dense())
+
+
 def test_predict_windows_per_step_and_held_window_means(dataset):
     windows = fixed_windows(dataset, "test", 100)[:3]
     spec = InputSpec(sensor=(W, H), window_ms=100)
@@ -135,6 +149,10 @@ def test_predict_windows_per_step_and_held_window_means(dataset):
     assert pred.shape == (3, 100, 3)
     expected = np.stack([encode_window(w, spec).sum(dim=(0, 1, 2)).numpy() for w in windows])
     np.testing.assert_allclose(pred[:, :, 0], expected)
+
+    engine = EngineModel(True)  # an event-driven engine gets the same spikes, sparse
+    assert np.array_equal(predict_windows(engine, spec, windows, batch_size=2), pred)
+    assert engine.layouts == [torch.sparse_coo, torch.sparse_coo]
 
     ann = InputSpec.for_representation("frames", sensor=(W, H), scale=1.0, window_ms=100)
     pred = predict_windows(SumModel(False), ann.as_dict(), windows, batch_size=2)

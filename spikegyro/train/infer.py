@@ -9,7 +9,16 @@ import torch
 from torch import nn
 
 from spikegyro.events.windows import series_per_window
-from spikegyro.train.data import InputSpec, Window, as_input_spec, encode_window, model_batch
+from spikegyro.train.data import (
+    EventBatch,
+    InputSpec,
+    Window,
+    as_input_spec,
+    encode_batch,
+    encode_window,
+    model_batch,
+    window_events,
+)
 
 
 def spec_of(payload_or_input_spec: dict[str, Any] | InputSpec) -> InputSpec:
@@ -59,8 +68,16 @@ def predict_windows(
     if device is None:
         device = next(iter(model.parameters())).device
 
+    # The event-driven CPU engine reads the spikes as a sparse tensor, never a dense one.
+    engine = getattr(model, "event_engine", None) is not None
+    sparse = engine and spec.representation == "spikes" and torch.device(device).type == "cpu"
+
     def forward(chunk: list[Window]) -> np.ndarray:
-        inputs = torch.stack([encode_window(w, spec) for w in chunk])
+        if sparse:
+            events = EventBatch.concatenate([window_events(w, spec) for w in chunk])
+            inputs = encode_batch(events, spec, sparse=True)
+        else:
+            inputs = torch.stack([encode_window(w, spec) for w in chunk])
         x, _ = model_batch(inputs, None, spec)
         y = model(x.to(device)).float().cpu()
         return per_millisecond(y, spec, len(chunk)).numpy()
