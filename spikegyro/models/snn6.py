@@ -241,8 +241,8 @@ class SNN6(nn.Module):
         spikes = x if x.is_floating_point() else x.to(self.fc.weight.dtype)
         engine = self.event_engine
         events = engine is not None and not keep_spikes and x.device.type == "cpu"
-        if spikes.is_sparse and not (events and not self.log_polar):
-            spikes = spikes.to_dense()  # only the event-driven engine reads a sparse input
+        if spikes.is_sparse and (self.log_polar or not events):
+            spikes = spikes.to_dense()  # the batch path and the log-polar map need it dense
         spikes = self.with_log_polar(spikes)
         if events:
             return self.fc(engine.pooled(spikes)), []

@@ -6,7 +6,9 @@ the same bounded surrogate (``SRMParams.rho_cut`` > 0), but the forward pass vis
 input spikes (:mod:`spikegyro.snn.sparse_forward`) and the backward pass only the (neuron, step)
 pairs within the surrogate's support (:mod:`spikegyro.snn.sparse_backward`). Its output is the
 pooled last-layer spikes; the dense readout and the loss downstream are the model's own torch
-code.
+code. Its input is a dense spike tensor or a sparse COO one
+(:func:`spikegyro.events.binning_torch.sparse_spike_tensor`, as training gives it), whose
+entries it reads without a dense copy.
 
 The layers of the batch elements run as tasks on ``threads`` threads (Numba releases the GIL),
 each element's layers in order.
