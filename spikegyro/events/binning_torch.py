@@ -130,10 +130,21 @@ def _spike_entries(
         if bucket[e] >= 0:
             flat[fill[bucket[e]]] = (np.int64(y[e]) * width + x[e]) * channels + p[e]
             fill[bucket[e]] += 1
+    # Each neuron's (channel, y, x), looked up instead of divided out per entry.
+    neuron_of = np.arange(neurons)
+    coords = (neuron_of % channels, neuron_of // channels // width, neuron_of // channels % width)
     bits = np.zeros((neurons + 63) // 64, np.uint64)
+    distinct = 0  # counted first, so that the entries need no copy to trim them
+    for b in range(windows * bins):
+        for j in range(starts[b], starts[b + 1]):
+            bits[flat[j] >> 6] |= np.uint64(1) << np.uint64(flat[j] & 63)
+        for j in range(starts[b], starts[b + 1]):
+            bit = np.uint64(1) << np.uint64(flat[j] & 63)
+            distinct += (bits[flat[j] >> 6] & bit) != 0
+            bits[flat[j] >> 6] &= ~bit
     hits = np.zeros(neurons, np.float32)
-    indices = np.empty((5, flat.size), np.int64)
-    values = np.empty(flat.size, np.float32)
+    indices = np.empty((5, distinct), np.int64)
+    values = np.empty(distinct, np.float32)
     n = 0
     for b in range(windows * bins):
         for j in range(starts[b], starts[b + 1]):
@@ -143,12 +154,16 @@ def _spike_entries(
             while bits[word]:
                 neuron = word * 64 + trailing_zeros(bits[word])
                 bits[word] &= bits[word] - np.uint64(1)
-                pixel, c = divmod(neuron, channels)
-                indices[:, n] = (b // bins, c, pixel // width, pixel % width, b % bins)
+                indices[0, n], indices[4, n] = b // bins, b % bins
+                indices[1, n], indices[2, n], indices[3, n] = (
+                    coords[0][neuron],
+                    coords[1][neuron],
+                    coords[2][neuron],
+                )
                 values[n] = hits[neuron] if count else 1.0
                 hits[neuron] = 0.0
                 n += 1
-    return indices[:, :n].copy(), values[:n].copy()
+    return indices, values
 
 
 def voxel_grid(
