@@ -135,7 +135,7 @@ def test_spike_tensor_is_time_major_and_drops_events_outside_the_bins():
 
 
 @pytest.mark.parametrize("count", [False, True])
-def test_sparse_spike_tensor_holds_the_dense_ones_entries_in_the_engines_order(count):
+def test_a_sparse_spike_tensor_holds_the_dense_ones_entries_in_the_engines_order(count):
     """Events in any order, repeats, dropped ones: the same tensor as :func:`spike_tensor`, its
     entries stored by (window, step, pixel, channel), each once."""
     rng = np.random.default_rng(4)
@@ -145,7 +145,7 @@ def test_sparse_spike_tensor_holds_the_dense_ones_entries_in_the_engines_order(c
     window = torch.from_numpy(rng.integers(0, windows, n))
     shape = dict(num_windows=windows, height=height, width=width, num_bins=bins, count=count)
     dense = binning_torch.spike_tensor(x, y, t, p, window, **shape)
-    sparse = binning_torch.sparse_spike_tensor(x, y, t, p, window, **shape)
+    sparse = binning_torch.spike_tensor(x, y, t, p, window, **shape, sparse=True)
     assert sparse.is_sparse and torch.equal(sparse.to_dense(), dense)
     n_, c, yy, xx, k = sparse._indices()
     key = (((n_ * bins + k) * height + yy) * width + xx) * 2 + c

@@ -8,8 +8,8 @@ host-device synchronisation), so a training step can ship ~1 MB of events per wi
 instead of a 35 MB dense tensor and bin them there. Each window's slice of the result equals what
 the one-window function returns for that window's events: bit for bit on the CPU; on a GPU the
 float sums of the voxel grid may differ in their last bit (atomic adds are unordered).
-:func:`sparse_spike_tensor` bins spikes on the CPU into a sparse tensor for the event-driven
-engine, which never needs the dense one.
+:func:`spike_tensor` with ``sparse`` bins spikes on the CPU into a sparse tensor for the
+event-driven engine, which never needs the dense one.
 
 Times are microseconds, relative to whatever origin ``t_start_us``/``t_end_us`` use (the
 training data path sends times relative to each window's start, so int32 suffices).
@@ -37,6 +37,7 @@ def spike_tensor(
     t_start_us: int = 0,
     bin_us: int = 1000,
     count: bool = False,
+    sparse: bool = False,
 ) -> torch.Tensor:
     """Bin the events of a batch into (num_windows, 2, height, width, num_bins) spike tensors.
 
@@ -47,8 +48,23 @@ def spike_tensor(
     Returns:
         float32 tensor on the events' device, a (N, 2, H, W, T) view of time-major,
         channels-last storage (T, N, H, W, 2): the layout SNN-6's layers work in, so the first
-        layer reads it without a copy.
+        layer reads it without a copy. With ``sparse``, a sparse COO tensor instead (binned on
+        the CPU with Numba; no dense tensor, which takes 35 MB per 100 ms window at 240x180),
+        its entries stored in the order the event-driven engine reads them (window, step,
+        pixel, channel). It is not marked coalesced, since that order is not the lexicographic
+        order of its (N, C, H, W, T) indices; ``coalesce()`` sorts it.
     """
+    if sparse:
+        arrays = [a.detach().cpu().numpy() for a in (x, y, t, p, window)]
+        shape = (num_windows, 2, height, width, num_bins)
+        indices, values = _spike_entries(*arrays, shape, int(t_start_us), int(bin_us), count)
+        return torch.sparse_coo_tensor(
+            torch.from_numpy(indices),
+            torch.from_numpy(values),
+            shape,
+            is_coalesced=False,
+            check_invariants=False,  # built valid below; the check costs a pass over the entries
+        ).to(t.device)
     k = torch.div(t.long() - int(t_start_us), int(bin_us), rounding_mode="floor")
     keep = (k >= 0) & (k < num_bins)
     size = num_bins * num_windows * height * width * 2
@@ -63,40 +79,6 @@ def spike_tensor(
         out.index_fill_(0, flat, 1.0)
     dense = out[:size].view(num_bins, num_windows, height, width, 2)
     return dense.permute(1, 4, 2, 3, 0)
-
-
-def sparse_spike_tensor(
-    x: torch.Tensor,
-    y: torch.Tensor,
-    t: torch.Tensor,
-    p: torch.Tensor,
-    window: torch.Tensor,
-    *,
-    num_windows: int,
-    height: int,
-    width: int,
-    num_bins: int,
-    t_start_us: int = 0,
-    bin_us: int = 1000,
-    count: bool = False,
-) -> torch.Tensor:
-    """:func:`spike_tensor` as a sparse COO tensor (N, 2, H, W, T) (CPU, Numba): the same bins
-    and values, without the dense tensor (35 MB per 100 ms window at 240x180).
-
-    Its entries are stored in the order the event-driven engine reads them (window, step, pixel,
-    channel): it is not marked coalesced, since that order is not the lexicographic order of its
-    (N, C, H, W, T) indices; ``coalesce()`` sorts it.
-    """
-    arrays = [a.detach().cpu().numpy() for a in (x, y, t, p, window)]
-    shape = (num_windows, 2, height, width, num_bins)
-    indices, values = _spike_entries(*arrays, shape, int(t_start_us), int(bin_us), count)
-    return torch.sparse_coo_tensor(
-        torch.from_numpy(indices),
-        torch.from_numpy(values),
-        shape,
-        is_coalesced=False,
-        check_invariants=False,  # built valid above; the check costs a pass over the entries
-    ).to(t.device)
 
 
 @numba.njit(cache=True, nogil=True)

@@ -7,7 +7,7 @@ input spikes (:mod:`spikegyro.snn.sparse_forward`) and the backward pass only th
 pairs within the surrogate's support (:mod:`spikegyro.snn.sparse_backward`). Its output is the
 pooled last-layer spikes; the dense readout and the loss downstream are the model's own torch
 code. Its input is a dense spike tensor or a sparse COO one
-(:func:`spikegyro.events.binning_torch.sparse_spike_tensor`, as training gives it), whose
+(:func:`spikegyro.events.binning_torch.spike_tensor` with ``sparse``, as training gives it), whose
 entries it reads without a dense copy.
 
 The layers of the batch elements run as tasks on ``threads`` threads (Numba releases the GIL),

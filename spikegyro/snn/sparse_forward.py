@@ -108,9 +108,9 @@ def coo_to_lists(
     arrays' range ``offsets[b, 0]:offsets[b, T]``.
 
     Entries already in (element, step, flat index) order, as
-    :func:`spikegyro.events.binning_torch.sparse_spike_tensor` stores them, are taken in one pass;
-    any other order is sorted first, and entries at the same index are summed (the value of an
-    uncoalesced sparse tensor). Zero values are kept (an input of 0 adds nothing).
+    :func:`spikegyro.events.binning_torch.spike_tensor` with ``sparse`` stores them, are taken in
+    one pass; any other order is sorted first, and entries at the same index are summed (the
+    value of an uncoalesced sparse tensor). Zero values are kept (an input of 0 adds nothing).
     """
     elements, channels, height, width, steps = shape
     pixels = height * width * channels

@@ -19,8 +19,8 @@ by :func:`encode_window` in a DataLoader worker and the stacked tensors copied t
 lists and binned on the device by :func:`encode_batch` (:mod:`spikegyro.events.binning_torch`):
 ~1 MB per 100 ms window instead of a 35 MB float32 spike tensor at 240x180. Both give the same
 input tensors. For the event-driven CPU engine, spike batches arriving as events are binned into
-a sparse tensor instead (:func:`spikegyro.events.binning_torch.sparse_spike_tensor`), which that
-engine reads without ever making the dense one.
+a sparse tensor instead (:func:`spikegyro.events.binning_torch.spike_tensor` with ``sparse``),
+which that engine reads without ever making the dense one.
 """
 
 from __future__ import annotations
@@ -418,10 +418,9 @@ def encode_batch(
     n, height, width = batch.num_windows, batch.height, batch.width
     window = batch.window_index()
     if spec.representation == "spikes":
-        binned = binning_torch.sparse_spike_tensor if sparse else binning_torch.spike_tensor
-        return binned(
+        return binning_torch.spike_tensor(
             batch.x, batch.y, batch.t, batch.p, window, num_windows=n, height=height,
-            width=width, num_bins=spec.window_ms,
+            width=width, num_bins=spec.window_ms, sparse=sparse,
         )  # fmt: skip
     # Each target_ms sub-window is a window of its own, with times relative to its start.
     sub_us = spec.target_ms * BIN_US
