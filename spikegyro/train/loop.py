@@ -336,8 +336,7 @@ def _train(
     if ctx.distributed:
         ids = [ctx.device.index] if ctx.device.type == "cuda" else None
         net = DistributedDataParallel(run.model, device_ids=ids)
-    sparse = run.compute == "sparse"
-    events = events_on_device(ctx.device, config.data_path, sparse)
+    events = events_on_device(ctx.device, config.data_path, run.compute == "sparse")
     samples = training_samples(config, run.spec, events=events)
     _prepare_validation(run)
     if ctx.is_main:
