@@ -31,6 +31,7 @@ from spikegyro.train import distributed
 from spikegyro.train.data import model_batch
 from spikegyro.train.loop import (
     StepSampler,
+    _data_workers,
     input_spec_of,
     model_kwargs_of,
     resume_config,
@@ -124,6 +125,14 @@ def assert_same_weights(a: Path, b: Path, atol: float = 0.0) -> None:
     assert sa.keys() == sb.keys()
     for k in sa:
         torch.testing.assert_close(sa[k], sb[k], atol=atol, rtol=0)
+
+
+def test_data_workers_are_capped_at_the_cores_the_process_may_use(monkeypatch):
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    assert [_data_workers(n) for n in (0, 1, 2, 4)] == [0, 1, 2, 2]
+    monkeypatch.delattr(os, "sched_getaffinity", raising=False)
+    monkeypatch.setattr(os, "cpu_count", lambda: None)
+    assert _data_workers(4) == 1
 
 
 def test_run_writes_its_files_and_resumes_to_the_same_state(dataset, tmp_path):

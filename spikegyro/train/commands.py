@@ -93,7 +93,7 @@ OPTION_HELP: dict[str, str] = {
     "val_windows": "Validate on at most N windows (0 = all).",
     "val_sequences": "Simulated validation sequences (online).",
     "log_every": "Steps per log row.",
-    "num_workers": "DataLoader workers per process.",
+    "num_workers": "DataLoader workers per process (at most the cores available).",
     "threads": "Torch CPU threads (0 = default).",
     "device": "auto, cpu, cuda or cuda:K.",
     "data_path": "events (binned where the model runs), dense, or auto (events on CUDA and for "

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import random
 import sys
 import time
@@ -414,19 +415,27 @@ def _prepare_validation(run: _Run) -> None:
     run.best_on = val_id
 
 
+def _data_workers(requested: int) -> int:
+    """DataLoader worker processes for ``requested``: at most the cores this process may run on,
+    since more only contend for them (the presets ask for 4, for GPU hosts)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return min(requested, cores or 1)
+
+
 def _loader(
     samples: TrainingSamples, config: TrainConfig, ctx: distributed.DistContext, start_step: int
 ) -> DataLoader:
     """This process's share of the batches of steps ``start_step .. iterations-1``."""
+    workers = _data_workers(config.num_workers)
     return DataLoader(
         samples,
         batch_size=config.batch_size // ctx.world_size,
         sampler=StepSampler(
             start_step, config.iterations, config.batch_size, ctx.rank, ctx.world_size
         ),
-        num_workers=config.num_workers,
+        num_workers=workers,
         collate_fn=samples.collate,
-        worker_init_fn=_worker_init if config.num_workers else None,
+        worker_init_fn=_worker_init if workers else None,
         persistent_workers=False,
         pin_memory=ctx.device.type == "cuda",
     )

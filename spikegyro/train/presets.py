@@ -71,7 +71,8 @@ class TrainConfig:
         val_windows: validate on at most this many fixed windows (0 = all).
         val_sequences: sequences simulated for validation in online mode without ``data``.
         log_every: steps per CSV log row.
-        num_workers: DataLoader worker processes per training process.
+        num_workers: DataLoader worker processes per training process (at most the cores
+            this process may run on).
         threads: torch intra-op threads (0 = torch's default).
         device: "auto", "cpu", "cuda" or "cuda:K".
         data_path: how training batches reach the device: "events" (event lists, binned on the
