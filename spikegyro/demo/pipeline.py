@@ -181,7 +181,7 @@ def _stream_recording(config: DemoConfig, out: Path, console: Console) -> dict[s
     return {
         "recording": str(path),
         "scene": recording.attrs.get("scene"),
-        "seconds": result.steps / 1000,
+        "seconds": sim.duration_ms / 1000,  # result.steps has a bin more: an event at the end
         "events": result.events,
         "realtime_factor": result.realtime_factor,
         "vs_gyro": result.stats,
