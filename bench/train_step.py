@@ -45,7 +45,7 @@ from spikegyro.models.snn6 import SNN6
 from spikegyro.sim.dataset import SimConfig, simulate_sequence
 from spikegyro.snn.sparse import _Plan
 from spikegyro.train.data import (
-    collate_events,
+    EventBatch,
     encode_batch,
     encode_target,
     encode_window,
@@ -82,7 +82,7 @@ def windows(seed: int = 7) -> tuple[Inputs, torch.Tensor]:
             recording = simulate_sequence(config, i, seed=seed)
             picked.append(sequence_windows(recording, STEPS, f"{sensor}:{i}")[0])
     y = torch.stack([encode_target(w, SPEC) for w in picked])
-    events, _ = collate_events([(window_events(w, SPEC), y[0]) for w in picked])
+    events = EventBatch.concatenate([window_events(w, SPEC) for w in picked])
     inputs = {
         "dense": torch.stack([encode_window(w, SPEC) for w in picked]),
         "sparse": encode_batch(events, SPEC, sparse=True),
