@@ -9,6 +9,7 @@ exit code 2; Ctrl-C is one line and exit code 130; anything else is a bug and ke
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 import warnings
 from collections.abc import Sequence
@@ -24,6 +25,7 @@ from spikegyro.errors import (
     Interrupted,
     check_interrupt,
     install_sigint_handler,
+    interrupt_pending,
     is_interrupt,
 )
 
@@ -54,9 +56,11 @@ class _LazyGroup(TyperGroup):
     def invoke(self, ctx: typer.Context) -> Any:
         try:
             return super().invoke(ctx)
-        except (KeyboardInterrupt, SystemError) as exc:
-            # Typer would turn Ctrl-C into a bare exit code, and Numba into a SystemError.
-            if is_interrupt(exc):
+        except (KeyboardInterrupt, Exception) as exc:
+            # Typer would turn Ctrl-C into a bare exit code, and Numba into a SystemError; an
+            # error after a Ctrl-C that compiled code swallowed is its consequence (Numba caching
+            # a function whose compilation the signal cut short).
+            if is_interrupt(exc) or interrupt_pending():
                 raise Interrupted() from exc
             raise
 
@@ -179,6 +183,13 @@ def main() -> None:
     except KeyboardInterrupt:  # before or after a command, outside Typer
         typer.echo("interrupted (Ctrl-C); stopped.", err=True)
         code = EXIT_INTERRUPTED
+    if code == EXIT_INTERRUPTED:
+        # Leave without the interpreter's teardown: after a Ctrl-C that cut Numba's compiler
+        # short, LLVM's finalizers can crash it or the signal come back, either of which would
+        # replace the exit code. The command's outputs are complete or removed by now.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
     if code:
         sys.exit(code)
 

@@ -128,3 +128,32 @@ def test_a_ctrl_c_that_compiled_code_swallows_still_stops_without_a_traceback(tm
     assert done.stdout.split() == ["survived"], done.stdout
     assert "KeyboardInterrupt" in done.stderr  # raised again by check_interrupt, uncaught here
     assert "ctypes callback" not in done.stderr  # the swallowed one is not printed
+
+
+def test_an_error_after_a_swallowed_ctrl_c_is_reported_as_the_interrupt(tmp_path) -> None:
+    """A Ctrl-C that cuts Numba's compiler short can surface as another error (its cache save
+    finds no object code: RuntimeError) before any check: that is still Ctrl-C, exit 130 with
+    one line, not a traceback and exit 1."""
+    script = tmp_path / "cut_short.py"
+    script.write_text(
+        "import ctypes, os, signal\n"
+        "from spikegyro import cli\n"
+        "def compile_step():\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    sum(range(10_000))\n"
+        "def boom():\n"
+        "    ctypes.CFUNCTYPE(None)(compile_step)()\n"
+        "    raise RuntimeError('no compiled object yet')\n"
+        "cli._COMMANDS['boom'] = '__main__:boom'\n"
+        "cli.sys.argv = ['spikegyro', 'boom']\n"
+        "cli.main()\n"
+    )
+    done = subprocess.run(
+        [sys.executable, str(script)],
+        capture_output=True,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    assert done.returncode == 130, done.stderr[-2000:]
+    assert "Traceback" not in done.stderr, done.stderr[-2000:]
+    assert done.stderr.strip().splitlines()[-1] == "interrupted (Ctrl-C); stopped."
