@@ -15,6 +15,7 @@ import torch.nn.functional as F
 
 from spikegyro.models.registry import PRETRAINED_SNN6, load_checkpoint
 from spikegyro.models.snn6 import READOUT, SNN6
+from spikegyro.snn import functional
 from spikegyro.snn.functional import fire, psp, surrogate_gradient, surrogate_half_width
 from spikegyro.snn.layers import GASP, SRMConv, SRMDense, SRMParams
 from spikegyro.snn.sparse import EventDrivenStack, _Plan
@@ -409,3 +410,67 @@ def test_shipped_snn6_in_float32_at_240x180_against_a_float64_reference():
     assert loss_s == pytest.approx(loss_r, rel=1e-3)
     for name, grad in dense.items():
         assert relative(sparse[name].double(), grad) < 1e-2, name
+
+
+def _engine_spike_tensors(model: SNN6, x: torch.Tensor) -> list[torch.Tensor]:
+    """The engine's spikes of each spiking layer but the last, as (N, C, H, W, T) 0/1 tensors."""
+    plan = _Plan.of(model.convs, model.pool, tuple(x.shape[2:4]), np.float32, record=False)
+    elements = [plan.forward_element(x[b].numpy()) for b in range(x.shape[0])]
+    tensors = []
+    for i, layer in enumerate(plan.layers[:-1]):
+        channels, (height, width) = layer.weight.shape[2], layer.out_shape
+        flat = torch.zeros(x.shape[0], x.shape[-1], height * width * channels, dtype=torch.float64)
+        for b, element in enumerate(elements):
+            offsets, index, _ = element.inputs[i + 1]
+            steps = np.repeat(np.arange(offsets.size - 1), np.diff(offsets))
+            flat[b, torch.from_numpy(steps), torch.from_numpy(index.astype(np.int64))] = 1.0
+        shaped = flat.reshape(x.shape[0], x.shape[-1], height, width, channels)
+        tensors.append(shaped.permute(0, 4, 2, 3, 1).contiguous())
+    return tensors
+
+
+@pytest.mark.slow
+def test_shipped_snn6_in_float32_at_240x180_matches_autograd_given_the_same_spikes(monkeypatch):
+    """Float32, 240x180, T = 100, the shipped weights: the engine's loss and gradients against
+    autograd through the batch path in float64 that is handed the engine's spikes in layers 1-4
+    (its thresholds are still evaluated, to count the flips; its surrogate reads its own
+    potentials, which differ from the engine's by rounding). With the spikes that flip at the
+    threshold taken out of the comparison, what is left is the arithmetic of the backward pass:
+    every gradient to 1e-4 relative norm, as for two exact implementations in float32."""
+    model, _ = load_checkpoint(PRETRAINED_SNN6)
+    model.train()
+    model.set_surrogate_cut(CUT)
+    x = random_window((2, 2, 180, 240, 100), 0.01, torch.float32)
+    y = torch.randn(2, 3, 100, generator=torch.Generator().manual_seed(6))
+    model.use_event_engine(2)
+    loss_s, sparse = gradients(model, x, y, start=50)
+    # As the batch path stores a layer's potential: time-major, channels last (T, N, H, W, C).
+    given = [
+        s.permute(4, 0, 2, 3, 1).reshape(x.shape[-1], -1) for s in _engine_spike_tensors(model, x)
+    ]
+    flips: list[int] = []
+    own_fire_rows = functional._fire_rows
+
+    def fire_given(rows, theta, ref_kernel, *, in_place=False):
+        if len(flips) == len(given):  # layer 5: its spikes are pooled inside the engine
+            return own_fire_rows(rows, theta, ref_kernel, in_place=in_place)
+        spikes = given[len(flips)].to(rows)
+        potential = rows if in_place else rows.clone()
+        taps = ref_kernel[1:].to(rows)[:, None]
+        flipped = 0
+        for t in range(rows.shape[0]):
+            flipped += int(((potential[t] >= theta).to(rows) != spikes[t]).sum())
+            ahead = min(taps.shape[0], rows.shape[0] - 1 - t)
+            potential[t + 1 : t + 1 + ahead] += taps[:ahead] * spikes[t]
+        flips.append(flipped)
+        return spikes, potential
+
+    monkeypatch.setattr(functional, "_fire_rows", fire_given)
+    reference = copy.deepcopy(model).double()
+    reference.use_event_engine(None)
+    loss_r, dense = gradients(reference, x.double(), y.double(), start=50)
+    assert len(flips) == 4
+    assert sum(flips) <= 1e-5 * sum(int(s.sum()) for s in given), flips
+    assert loss_s == pytest.approx(loss_r, rel=1e-5)
+    worst = {name: relative(sparse[name].double(), grad) for name, grad in dense.items()}
+    assert max(worst.values()) < 1e-4, (worst, flips)
