@@ -28,6 +28,7 @@ from spikegyro.train import distributed
 from spikegyro.train.loop import TrainResult, resume_config, train
 from spikegyro.train.presets import PRESETS, TrainConfig, resolve_config
 from spikegyro.train.relay import STATE_FILES, append_segment, plot_relay
+from spikegyro.train.throughput import cpu_has_bfloat16
 
 
 def _json_option(text: str | None, name: str) -> dict[str, Any] | None:
@@ -98,7 +99,7 @@ OPTION_HELP: dict[str, str] = {
     "device": "auto, cpu, cuda or cuda:K.",
     "data_path": "events (binned where the model runs), dense, or auto (events on CUDA and for "
     "the event-driven CPU engine).",
-    "amp": "off, or bf16: the ANNs' forward passes in bfloat16 autocast (GPU speed).",
+    "amp": "off, or bf16: the ANNs' forward passes in bfloat16 autocast (GPUs; CPUs with bf16).",
     "compute": "SNNs: sparse (event-driven CPU engine), dense (torch), or auto (sparse on a CPU "
     "in one process).",
     "surrogate_cut": "SNNs: zero the surrogate gradient below this share of its peak (0 = "
@@ -228,10 +229,11 @@ def train_command(
 ) -> None:
     """Train a model; writes config.json, log.csv, last.pt, best.pt and loss.png to --out."""
     config = _run_config(preset, out, resume, _overrides(options, sensor_width, sensor_height))
-    if config.amp != "off" and distributed.pick_device(config.device).type == "cpu":
+    on_cpu = distributed.pick_device(config.device).type == "cpu"
+    if config.amp != "off" and on_cpu and not cpu_has_bfloat16():
         Console(stderr=True).print(
-            f"warning: --amp {config.amp} on a CPU: most CPUs have no bfloat16 units, so this is "
-            "usually slower than float32 (it is meant for GPUs)."
+            f"warning: --amp {config.amp} on a CPU without bfloat16 instructions (AVX-512 BF16 or "
+            "AMX): usually several times slower than float32 here (it is meant for GPUs)."
         )
     result = train(config, resume=resume)
     if distributed.init_rank() == 0:

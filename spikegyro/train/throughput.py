@@ -47,6 +47,14 @@ def train_step(
     return loss.detach()
 
 
+def cpu_has_bfloat16() -> bool:
+    """Whether this CPU computes in bfloat16 natively (AVX-512 BF16 or AMX, as oneDNN finds):
+    on such a CPU bfloat16 autocast measured 1.9-2.8x faster than float32 for the ANNs' steps, on
+    one without it 7-10x slower."""
+    probe = getattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", None)
+    return bool(probe is not None and probe())
+
+
 def synchronize(device: torch.device) -> None:
     """Wait for the device's queued work (CUDA runs asynchronously), so wall time is true."""
     if device.type == "cuda":
