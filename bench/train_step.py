@@ -8,12 +8,12 @@ tensor, the engine the same spikes as a sparse tensor binned from the windows' e
 reads without a dense copy; binning is outside both steps). Both paths run in one process, their
 steps interleaved (so both see the same background load), on 1 and 2 threads; the time is the
 median of ``--repeats`` steps after one warm-up step each, divided by the batch, as wall time and
-as the process's CPU time, user and system apart
-(system time is mostly the kernel mapping and zeroing the pages of fresh allocations: the dense
-path allocates its activations anew every step, and what that costs varies with the host's
-memory state, so the user-time ratio is printed too). Torch runs each path as ``spikegyro
-train`` does: on ``--threads`` threads for the dense path, on one beside the engine's threads
-for the sparse path. Peak memory: one step of each path in its own subprocess (peak resident
+as the process's CPU time, user and system apart. The process runs as ``spikegyro train`` runs
+on a CPU: with malloc keeping freed memory (:func:`spikegyro.train.memory.keep_freed_memory`;
+``--fresh-memory`` leaves glibc's default, under which the dense path's activations are mapped
+and zeroed anew every step, the system time, which varies with the host's memory state), torch
+on ``--threads`` threads for the dense path and on one beside the engine's threads for the
+sparse path. Peak memory: one step of each path in its own subprocess (peak resident
 set, VmHWM reset just before the step; growth = peak minus the level before it).
 
 Gradients: on the same batch, the largest relative norm ‖g_sparse − g_dense‖/‖g_dense‖ over the
@@ -53,6 +53,7 @@ from spikegyro.train.data import (
     window_events,
 )
 from spikegyro.train.loss import angular_velocity_loss
+from spikegyro.train.memory import keep_freed_memory
 from spikegyro.train.throughput import train_step
 
 BATCH = 8
@@ -189,8 +190,13 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--json", help="write the headline numbers to this file")
+    parser.add_argument(
+        "--fresh-memory", action="store_true", help="leave glibc's malloc at its default"
+    )
     parser.add_argument("--memory-of", help=argparse.SUPPRESS)  # internal: COMPUTE:THREADS
     args = parser.parse_args()
+    if not args.fresh_memory:
+        keep_freed_memory()
     if args.memory_of:
         compute, threads = args.memory_of.split(":")
         print(json.dumps(peak_memory(compute, int(threads))))
@@ -204,6 +210,7 @@ def main() -> None:
         seconds = step_times(x, y, threads, args.repeats)
         for compute in ("dense", "sparse"):
             command = [sys.executable, __file__, "--memory-of", f"{compute}:{threads}"]
+            command += ["--fresh-memory"] if args.fresh_memory else []
             out = subprocess.run(command, capture_output=True, text=True, check=True).stdout
             memory = json.loads(out.strip().splitlines()[-1])
             wall, user, system = seconds[compute]
@@ -256,6 +263,7 @@ def main() -> None:
             "sparse_system_s_per_window": two["sparse"]["system_s"],
             "user_cpu_speedup": two["dense"]["user_s"] / two["sparse"]["user_s"],
             "threads": max(args.threads),
+            "malloc_keeps_freed_memory": not args.fresh_memory,
             "max_grad_rel_diff": max(rel.values()),
             "grad_rel_diff": rel,
             "flipped_spikes": check["flipped_spikes"],

@@ -49,6 +49,7 @@ from spikegyro.train.data import (
 from spikegyro.train.infer import predict_windows
 from spikegyro.train.interrupt import GracefulStop, ignore_interrupts
 from spikegyro.train.loss import validation_metrics
+from spikegyro.train.memory import keep_freed_memory
 from spikegyro.train.presets import TrainConfig, load_config
 from spikegyro.train.runfiles import (
     ProgressBar,
@@ -332,6 +333,8 @@ def _train(
         )
     if config.threads:
         torch.set_num_threads(config.threads)
+    if ctx.device.type == "cpu":
+        keep_freed_memory()
     run = _build_run(config, ctx, resume)
     net: nn.Module = run.model
     if ctx.distributed:
