@@ -18,14 +18,13 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import time
 from pathlib import Path
 
 import torch
 
 from spikegyro.models.registry import build_model
 from spikegyro.train.data import InputSpec
-from spikegyro.train.throughput import synchronize, train_step
+from spikegyro.train.throughput import timed_steps, train_step
 
 SUB_WINDOWS = 5
 
@@ -48,18 +47,12 @@ def measure(name: str, representation: str, windows: int, amp: bool, args) -> di
     x = torch.randn(images, spec.in_channels, args.height, args.width, generator=generator)
     x = (x * (torch.rand(x.shape, generator=generator) < 0.05)).to(device)
     y = torch.randn(images, 3, generator=generator).to(device)
-    for _ in range(args.warmup):
-        train_step(net, optimizer, x, y, 0, 0.0, amp)
-    synchronize(device)
-    if device.type == "cuda":
-        torch.cuda.reset_peak_memory_stats(device)
-    times = []
-    for _ in range(args.repeats):
-        start = time.perf_counter()
-        train_step(net, optimizer, x, y, 0, 0.0, amp)
-        synchronize(device)
-        times.append(time.perf_counter() - start)
-    cuda = device.type == "cuda"
+    times, peak = timed_steps(
+        lambda: train_step(net, optimizer, x, y, 0, 0.0, amp),
+        device,
+        warmup=args.warmup,
+        repeats=args.repeats,
+    )
     return {
         "model": name,
         "input": representation,
@@ -68,7 +61,7 @@ def measure(name: str, representation: str, windows: int, amp: bool, args) -> di
         "amp": "bf16" if amp else "off",
         "median_ms": 1000 * statistics.median(times),
         "mean_ms": 1000 * statistics.fmean(times),
-        "peak_gib": torch.cuda.max_memory_allocated(device) / 2**30 if cuda else None,
+        "peak_gib": peak,
     }
 
 

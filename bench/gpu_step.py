@@ -40,7 +40,6 @@ import shutil
 import statistics
 import sys
 import tempfile
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -217,7 +216,7 @@ def measure(name, build, context, base_model, x, y, args, device, reference_out)
     """Time one variant's training step; its first output against the reference's."""
     import torch
 
-    from spikegyro.train.throughput import synchronize, train_step
+    from spikegyro.train.throughput import timed_steps, train_step
 
     model = build(copy.deepcopy(base_model))
     with context():
@@ -230,18 +229,8 @@ def measure(name, build, context, base_model, x, y, args, device, reference_out)
             return train_step(model, optimizer, x, y, args.steps // 2)
 
         run = graphed(step, device) if name.endswith("cuda-graph") else step
-        for _ in range(args.warmup):
-            run()
-        synchronize(device)
-        if device.type == "cuda":
-            torch.cuda.reset_peak_memory_stats(device)
-        times = []
-        for _ in range(args.repeats):
-            start = time.perf_counter()
-            run()
-            synchronize(device)
-            times.append(time.perf_counter() - start)
-    peak = torch.cuda.max_memory_allocated(device) / 2**30 if device.type == "cuda" else math.nan
+        times, peak = timed_steps(run, device, warmup=args.warmup, repeats=args.repeats)
+    peak = math.nan if peak is None else peak
     ms = 1000 * statistics.median(times)
     # The reference itself has nothing to be compared with: None, not a vacuous 0.
     diff = None

@@ -64,6 +64,17 @@ def test_ctrl_c_inside_compiled_code_is_exit_130_not_a_system_error(
     _assert_stopped(done, tmp_path, [out.name])
 
 
+def _run_script(script: Path) -> subprocess.CompletedProcess:
+    """Run a Python script with Ctrl-C's default action (a test run started in the background
+    would hand it an ignored SIGINT)."""
+    return subprocess.run(
+        [sys.executable, str(script)],
+        capture_output=True,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+
+
 def _tiny_dataset(root: Path) -> Path:
     rng = np.random.default_rng(0)
     for i, split in enumerate(("train", "train", "val")):
@@ -119,12 +130,7 @@ def test_a_ctrl_c_that_compiled_code_swallows_still_stops_without_a_traceback(tm
         "check_interrupt()\n"
         "print('not stopped')\n"
     )
-    done = subprocess.run(
-        [sys.executable, str(script)],
-        capture_output=True,
-        text=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
+    done = _run_script(script)
     assert done.stdout.split() == ["survived"], done.stdout
     assert "KeyboardInterrupt" in done.stderr  # raised again by check_interrupt, uncaught here
     assert "ctypes callback" not in done.stderr  # the swallowed one is not printed
@@ -148,12 +154,7 @@ def test_an_error_after_a_swallowed_ctrl_c_is_reported_as_the_interrupt(tmp_path
         "cli.sys.argv = ['spikegyro', 'boom']\n"
         "cli.main()\n"
     )
-    done = subprocess.run(
-        [sys.executable, str(script)],
-        capture_output=True,
-        text=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
+    done = _run_script(script)
     assert done.returncode == 130, done.stderr[-2000:]
     assert "Traceback" not in done.stderr, done.stderr[-2000:]
     assert done.stderr.strip().splitlines()[-1] == "interrupted (Ctrl-C); stopped."

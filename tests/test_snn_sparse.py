@@ -370,6 +370,19 @@ def test_thresholding_lists_what_a_numpy_comparison_finds(dtype, n0, n1):
     np.testing.assert_array_equal(lists[2][3 : counts[1]], u[near])
 
 
+def _shipped_float32_engine():
+    """The shipped SNN-6 on the event engine in float32 (cut 0.05) and its loss and gradients on
+    two random 240x180 windows of 100 ms: (model, x, y, loss, gradients)."""
+    model, _ = load_checkpoint(PRETRAINED_SNN6)
+    model.train()
+    model.set_surrogate_cut(CUT)
+    x = random_window((2, 2, 180, 240, 100), 0.01, torch.float32)
+    y = torch.randn(2, 3, 100, generator=torch.Generator().manual_seed(6))
+    model.use_event_engine(2)
+    loss_s, sparse = gradients(model, x, y, start=50)
+    return model, x, y, loss_s, sparse
+
+
 @pytest.mark.slow
 def test_shipped_snn6_in_float32_at_240x180_against_a_float64_reference():
     """Float32, 240x180, T = 100, the shipped weights, against the batch path in float64.
@@ -391,13 +404,7 @@ def test_shipped_snn6_in_float32_at_240x180_against_a_float64_reference():
       the engine's float32 sums run in other orders, through the PSP recursion).
 
     The float64 test above is the exactness check (1e-9)."""
-    model, _ = load_checkpoint(PRETRAINED_SNN6)
-    model.train()
-    model.set_surrogate_cut(CUT)
-    x = random_window((2, 2, 180, 240, 100), 0.01, torch.float32)
-    y = torch.randn(2, 3, 100, generator=torch.Generator().manual_seed(6))
-    model.use_event_engine(2)
-    loss_s, sparse = gradients(model, x, y, start=50)
+    model, x, y, loss_s, sparse = _shipped_float32_engine()
     engine = _engine_spikes(model, x)
     reference = copy.deepcopy(model).double()
     reference.use_event_engine(None)
@@ -437,13 +444,7 @@ def test_shipped_snn6_in_float32_at_240x180_matches_autograd_given_the_same_spik
     potentials, which differ from the engine's by rounding). With the spikes that flip at the
     threshold taken out of the comparison, what is left is the arithmetic of the backward pass:
     every gradient to 1e-4 relative norm, as for two exact implementations in float32."""
-    model, _ = load_checkpoint(PRETRAINED_SNN6)
-    model.train()
-    model.set_surrogate_cut(CUT)
-    x = random_window((2, 2, 180, 240, 100), 0.01, torch.float32)
-    y = torch.randn(2, 3, 100, generator=torch.Generator().manual_seed(6))
-    model.use_event_engine(2)
-    loss_s, sparse = gradients(model, x, y, start=50)
+    model, x, y, loss_s, sparse = _shipped_float32_engine()
     # As the batch path stores a layer's potential: time-major, channels last (T, N, H, W, C).
     given = [
         s.permute(4, 0, 2, 3, 1).reshape(x.shape[-1], -1) for s in _engine_spike_tensors(model, x)

@@ -274,6 +274,10 @@ def resume_config(run_dir: Path, overrides: dict[str, Any] | None = None) -> Tra
 def train(config: TrainConfig, *, resume: bool = False, progress: bool = True) -> TrainResult:
     """Train a model as ``config`` says; under torchrun every process calls this.
 
+    On a CPU it has glibc's malloc keep freed memory for the rest of the process
+    (:func:`spikegyro.train.memory.keep_freed_memory`), so that a step's activations are not
+    mapped and zeroed anew every step.
+
     Args:
         config: the resolved configuration (``config.out`` is the run directory).
         resume: continue from ``out/last.pt`` + ``out/resume.pt`` (must exist).

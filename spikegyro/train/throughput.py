@@ -13,7 +13,7 @@ import contextlib
 import copy
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import torch
@@ -59,6 +59,27 @@ def synchronize(device: torch.device) -> None:
     """Wait for the device's queued work (CUDA runs asynchronously), so wall time is true."""
     if device.type == "cuda":
         torch.cuda.synchronize(device)
+
+
+def timed_steps(
+    step: Callable[[], object], device: torch.device, *, warmup: int, repeats: int
+) -> tuple[list[float], float | None]:
+    """Seconds of each of ``repeats`` calls of ``step``, each timed alone with the device
+    synchronized, after ``warmup`` untimed calls; and the peak device memory of the timed calls
+    (GiB; None off CUDA)."""
+    for _ in range(warmup):
+        step()
+    synchronize(device)
+    cuda = device.type == "cuda"
+    if cuda:
+        torch.cuda.reset_peak_memory_stats(device)
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        step()
+        synchronize(device)
+        times.append(time.perf_counter() - start)
+    return times, torch.cuda.max_memory_allocated(device) / 2**30 if cuda else None
 
 
 @dataclass(frozen=True)
