@@ -1,7 +1,8 @@
 """SNN-6 training step on the CPU: the dense torch path against the event-driven engine.
 
 One step = forward + backward + Adam update of SNN-6 (240x180, T = 100 ms, batch 8, the shipped
-weights, surrogate cut 0.05 on both paths so that their gradients agree) on realistic windows:
+weights, the same surrogate cut on both paths so that their gradients agree: ``--cut``, by default
+the one ``spikegyro train --compute sparse`` uses) on realistic windows:
 half simulated with the ideal sensor, half with the ``davis240c`` preset (seeded, the same every
 run). Each path gets its input as ``spikegyro train`` gives it: the dense path the dense spike
 tensor, the engine the same spikes as a sparse tensor binned from the windows' events (which it
@@ -18,12 +19,13 @@ set, VmHWM reset just before the step; growth = peak minus the level before it).
 
 Gradients: on the same batch, the largest relative norm ‖g_sparse − g_dense‖/‖g_dense‖ over the
 parameter tensors (float32), and the spikes that differ between the two forward passes (a
-potential within float32 rounding of θ). Profile: where the engine's time goes per layer in a
-warm step (CPU seconds of the threads that ran it, so that waiting for a busy core does not
-count). The load average of the host before and after is printed and written: on a shared
-machine only the interleaved ratio means anything.
+potential within float32 rounding of θ); how far the cut moves the gradient from SLAYER's
+unbounded surrogate (cosine similarity per tensor, dense path, the same batch). Profile: where
+the engine's time goes per layer in a warm step (CPU seconds of the threads that ran it, so that
+waiting for a busy core does not count). The load average of the host before and after is
+printed and written: on a shared machine only the interleaved ratio means anything.
 
-    .venv/bin/python bench/train_step.py [--repeats 3] [--threads 1 2] [--json FILE]
+    .venv/bin/python bench/train_step.py [--repeats 3] [--threads 1 2] [--cut C] [--json FILE]
 """
 
 from __future__ import annotations
@@ -54,12 +56,12 @@ from spikegyro.train.data import (
 )
 from spikegyro.train.loss import angular_velocity_loss
 from spikegyro.train.memory import keep_freed_memory
+from spikegyro.train.presets import SPARSE_DEFAULT_CUT
 from spikegyro.train.throughput import train_step
 
 BATCH = 8
 STEPS = 100
 START = 50
-CUT = 0.05
 SPEC = {"representation": "spikes", "sensor": [240, 180], "scale": 1.0, "window_ms": STEPS}
 
 
@@ -92,16 +94,18 @@ def windows(seed: int = 7) -> tuple[Inputs, torch.Tensor]:
     return inputs, y
 
 
-def model(compute: str, threads: int) -> SNN6:
+def model(compute: str, threads: int, cut: float) -> SNN6:
     net, _ = load_checkpoint(PRETRAINED_SNN6)
     net.train()
-    net.set_surrogate_cut(CUT)
+    net.set_surrogate_cut(cut)
     net.use_event_engine(threads if compute == "sparse" else None)
     return net
 
 
-def make_step(compute: str, threads: int, x: Inputs, y) -> tuple[Callable[[], None], SNN6]:
-    net = model(compute, threads)
+def make_step(
+    compute: str, threads: int, x: Inputs, y, cut: float
+) -> tuple[Callable[[], None], SNN6]:
+    net = model(compute, threads, cut)
     optimizer = torch.optim.Adam(net.parameters(), lr=1e-5)
     # As `spikegyro train` runs each path: torch's own threads are the engine's for the dense
     # path; with the event engine torch keeps one (its ops are small).
@@ -114,11 +118,13 @@ def make_step(compute: str, threads: int, x: Inputs, y) -> tuple[Callable[[], No
     return step, net
 
 
-def step_times(x: Inputs, y, threads: int, repeats: int) -> dict[str, tuple[float, float, float]]:
+def step_times(
+    x: Inputs, y, threads: int, repeats: int, cut: float
+) -> dict[str, tuple[float, float, float]]:
     """Median (wall, user CPU, system CPU) seconds per window of each path, steps interleaved,
     one warm-up step each. CPU time (all threads of the process) does not count waiting for a
     busy core; system time is mostly the kernel mapping and zeroing freshly allocated pages."""
-    steps = {c: make_step(c, threads, x, y)[0] for c in ("dense", "sparse")}
+    steps = {c: make_step(c, threads, x, y, cut)[0] for c in ("dense", "sparse")}
     for step in steps.values():
         step()
     times: dict[str, list[tuple[float, float, float]]] = {c: [] for c in steps}
@@ -136,11 +142,11 @@ def step_times(x: Inputs, y, threads: int, repeats: int) -> dict[str, tuple[floa
     }
 
 
-def peak_memory(compute: str, threads: int) -> dict[str, float]:
+def peak_memory(compute: str, threads: int, cut: float) -> dict[str, float]:
     """Peak resident set (MiB) of one step in this (fresh) process."""
     torch.set_num_threads(threads)
     x, y = windows()
-    step, _ = make_step(compute, threads, x, y)
+    step, _ = make_step(compute, threads, x, y, cut)
     step()  # compile and warm up; the allocator keeps what it grew to
     with open("/proc/self/clear_refs", "w") as f:
         f.write("5")
@@ -150,13 +156,23 @@ def peak_memory(compute: str, threads: int) -> dict[str, float]:
     return {"peak_mib": peak, "growth_mib": peak - before}
 
 
-def gradient_check(inputs: Inputs, y) -> dict:
-    """Per-tensor relative gradient difference and flipped spikes per layer (float32)."""
+def dense_gradients(x: torch.Tensor, y, cut: float) -> dict[str, torch.Tensor]:
+    """Every parameter's gradient by the dense path with surrogate ``cut`` (0: unbounded)."""
+    torch.set_num_threads(2)
+    net = model("dense", 2, cut)
+    angular_velocity_loss(net(x), y, START).backward()
+    return {n: p.grad.clone() for n, p in net.named_parameters()}
+
+
+def gradient_check(inputs: Inputs, y, cut: float) -> dict:
+    """Per-tensor relative gradient difference between the paths, cosine similarity of the
+    cut's gradients to the unbounded surrogate's (dense path), and flipped spikes per layer
+    (float32)."""
     grads = {}
     for compute in ("dense", "sparse"):
         # Torch's threads as `spikegyro train` sets them: one beside the engine's two.
         torch.set_num_threads(2 if compute == "dense" else 1)
-        net = model(compute, 2)
+        net = model(compute, 2, cut)
         # The engine's second step is profiled: warm, as training runs it.
         for _ in range(2 if compute == "sparse" else 1):
             net.zero_grad()
@@ -164,6 +180,11 @@ def gradient_check(inputs: Inputs, y) -> dict:
         grads[compute] = {n: p.grad.clone() for n, p in net.named_parameters()}
         timing = net.event_engine.timing if compute == "sparse" else None
     rel = {n: float((grads["sparse"][n] - g).norm() / g.norm()) for n, g in grads["dense"].items()}
+    unbounded = dense_gradients(inputs["dense"], y, 0.0)
+    cosine = {
+        n: float(torch.nn.functional.cosine_similarity(g.flatten(), unbounded[n].flatten(), dim=0))
+        for n, g in grads["dense"].items()
+    }
     x = inputs["dense"]
     torch.set_num_threads(2)
     with torch.no_grad():
@@ -182,7 +203,7 @@ def gradient_check(inputs: Inputs, y) -> dict:
             steps = np.repeat(np.arange(STEPS), np.diff(offsets))
             sparse_set = set((steps * s.shape[1] + index).tolist())
             flips[i] += len(dense_set ^ sparse_set)
-    return {"relative": rel, "flipped_spikes": flips[:-1], "timing": timing}
+    return {"relative": rel, "cosine": cosine, "flipped_spikes": flips[:-1], "timing": timing}
 
 
 def main() -> None:
@@ -190,6 +211,12 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--json", help="write the headline numbers to this file")
+    parser.add_argument(
+        "--cut",
+        type=float,
+        default=SPARSE_DEFAULT_CUT,
+        help=f"surrogate cut of both paths (default {SPARSE_DEFAULT_CUT}, the sparse engine's)",
+    )
     parser.add_argument(
         "--fresh-memory", action="store_true", help="leave glibc's malloc at its default"
     )
@@ -199,7 +226,7 @@ def main() -> None:
         keep_freed_memory()
     if args.memory_of:
         compute, threads = args.memory_of.split(":")
-        print(json.dumps(peak_memory(compute, int(threads))))
+        print(json.dumps(peak_memory(compute, int(threads), args.cut)))
         return
 
     load_before = os.getloadavg()[0]
@@ -207,9 +234,10 @@ def main() -> None:
     density = float(x["dense"].mean())
     rows = []
     for threads in args.threads:
-        seconds = step_times(x, y, threads, args.repeats)
+        seconds = step_times(x, y, threads, args.repeats, args.cut)
         for compute in ("dense", "sparse"):
             command = [sys.executable, __file__, "--memory-of", f"{compute}:{threads}"]
+            command += ["--cut", str(args.cut)]
             command += ["--fresh-memory"] if args.fresh_memory else []
             out = subprocess.run(command, capture_output=True, text=True, check=True).stdout
             memory = json.loads(out.strip().splitlines()[-1])
@@ -217,10 +245,10 @@ def main() -> None:
             rows.append({"compute": compute, "threads": threads, "s": wall, "user_s": user,
                          "system_s": system, "cpu_s": user + system, **memory})  # fmt: skip
             print(f"  {compute:6s} {threads} thr {wall:.3f} s/window", file=sys.stderr)
-    check = gradient_check(x, y)
+    check = gradient_check(x, y, args.cut)
     print(
         f"SNN-6 training step (forward + backward + Adam), 240x180, T = {STEPS}, batch {BATCH} "
-        f"(4 ideal + 4 davis240c windows, input density {density:.2%}), surrogate cut {CUT}, "
+        f"(4 ideal + 4 davis240c windows, input density {density:.2%}), surrogate cut {args.cut}, "
         f"torch {torch.__version__}, median of {args.repeats} interleaved steps"
     )
     print("| threads | path | s per window | dense / this | CPU s per window (user + system) "
@@ -239,6 +267,8 @@ def main() -> None:
     print("gradient relative norm difference per tensor: "
           + ", ".join(f"{n} {v:.1e}" for n, v in rel.items()))  # fmt: skip
     print(f"spikes that differ between the paths, layers 1-4: {check['flipped_spikes']}")
+    cosine = ", ".join(f"{n} {v:.4f}" for n, v in check["cosine"].items())
+    print(f"cosine similarity to the unbounded surrogate's gradients (dense path): {cosine}")
     t = check["timing"]
     print("engine profile (CPU s per batch of 8, summed over threads):")
     print("| layer | forward | backward | input spikes | active pairs |")
@@ -263,9 +293,11 @@ def main() -> None:
             "sparse_system_s_per_window": two["sparse"]["system_s"],
             "user_cpu_speedup": two["dense"]["user_s"] / two["sparse"]["user_s"],
             "threads": max(args.threads),
+            "surrogate_cut": args.cut,
             "malloc_keeps_freed_memory": not args.fresh_memory,
             "max_grad_rel_diff": max(rel.values()),
             "grad_rel_diff": rel,
+            "cosine_to_unbounded": check["cosine"],
             "flipped_spikes": check["flipped_spikes"],
             "peak_mib": {f"{r['compute']}_{r['threads']}": r["peak_mib"] for r in rows},
             "profile_cpu_s": {"forward": t.layer_forward_s, "backward": t.layer_backward_s},
