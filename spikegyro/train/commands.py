@@ -103,7 +103,7 @@ OPTION_HELP: dict[str, str] = {
     "compute": "SNNs: sparse (event-driven CPU engine), dense (torch), or auto (sparse on a CPU "
     "in one process).",
     "surrogate_cut": "SNNs: zero the surrogate gradient below this share of its peak (0 = "
-    "unbounded; default 0.05 sparse, 0 dense).",
+    "unbounded; default 0.2 sparse, 0 dense).",
     "bare_steps": "Bare training steps timed at the end, to compare with the run (0 = off).",
     "sim": "Simulator settings for --online, as JSON.",
     "tensorboard": "TB logs.",
