@@ -168,22 +168,20 @@ def gradient_check(inputs: Inputs, y, cut: float) -> dict:
     """Per-tensor relative gradient difference between the paths, cosine similarity of the
     cut's gradients to the unbounded surrogate's (dense path), and flipped spikes per layer
     (float32)."""
-    grads = {}
-    for compute in ("dense", "sparse"):
-        # Torch's threads as `spikegyro train` sets them: one beside the engine's two.
-        torch.set_num_threads(2 if compute == "dense" else 1)
-        net = model(compute, 2, cut)
-        # The engine's second step is profiled: warm, as training runs it.
-        for _ in range(2 if compute == "sparse" else 1):
-            net.zero_grad()
-            angular_velocity_loss(net(inputs[compute]), y, START).backward()
-        grads[compute] = {n: p.grad.clone() for n, p in net.named_parameters()}
-        timing = net.event_engine.timing if compute == "sparse" else None
-    rel = {n: float((grads["sparse"][n] - g).norm() / g.norm()) for n, g in grads["dense"].items()}
+    dense = dense_gradients(inputs["dense"], y, cut)
+    # Torch's threads as `spikegyro train` sets them: one beside the engine's two.
+    torch.set_num_threads(1)
+    net = model("sparse", 2, cut)
+    for _ in range(2):  # the engine's second step is profiled: warm, as training runs it
+        net.zero_grad()
+        angular_velocity_loss(net(inputs["sparse"]), y, START).backward()
+    timing = net.event_engine.timing
+    sparse = {n: p.grad for n, p in net.named_parameters()}
+    rel = {n: float((sparse[n] - g).norm() / g.norm()) for n, g in dense.items()}
     unbounded = dense_gradients(inputs["dense"], y, 0.0)
     cosine = {
         n: float(torch.nn.functional.cosine_similarity(g.flatten(), unbounded[n].flatten(), dim=0))
-        for n, g in grads["dense"].items()
+        for n, g in dense.items()
     }
     x = inputs["dense"]
     torch.set_num_threads(2)

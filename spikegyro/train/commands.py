@@ -26,7 +26,7 @@ from rich.console import Console
 from spikegyro.errors import InputError
 from spikegyro.train import distributed
 from spikegyro.train.loop import TrainResult, resume_config, train
-from spikegyro.train.presets import PRESETS, TrainConfig, resolve_config
+from spikegyro.train.presets import PRESETS, SPARSE_DEFAULT_CUT, TrainConfig, resolve_config
 from spikegyro.train.relay import STATE_FILES, append_segment, plot_relay
 from spikegyro.train.throughput import cpu_has_bfloat16
 
@@ -103,7 +103,7 @@ OPTION_HELP: dict[str, str] = {
     "compute": "SNNs: sparse (event-driven CPU engine), dense (torch), or auto (sparse on a CPU "
     "in one process).",
     "surrogate_cut": "SNNs: zero the surrogate gradient below this share of its peak (0 = "
-    "unbounded; default 0.2 sparse, 0 dense).",
+    f"unbounded; default {SPARSE_DEFAULT_CUT} sparse, 0 dense).",
     "bare_steps": "Bare training steps timed at the end, to compare with the run (0 = off).",
     "sim": "Simulator settings for --online, as JSON.",
     "tensorboard": "TB logs.",
