@@ -22,6 +22,9 @@ those δ alone, in reverse time (no gradient flows through the refractory feedba
   recorded (so the backward pass needs no buffers of its own per pair); the pairs of one input
   pixel share their targets.
 
+In both products the row of ∂L/∂z that the entries of one input pixel share stays in vector
+registers across them (:func:`spikegyro.snn.simd.add_scaled`, :func:`spikegyro.snn.simd.dot_rows`).
+
 Layouts as in :mod:`spikegyro.snn.sparse_forward` (channels-last flat indices, CSR by step).
 Sums run in any order (``fastmath``): they are not compared with a threshold.
 """
@@ -31,6 +34,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from spikegyro.snn.simd import add_scaled, dot_rows
 from spikegyro.snn.sparse_forward import divisor, pixel_group, quotient
 
 _FUTURE = np.iinfo(np.int64).max
@@ -126,11 +130,7 @@ def _weight_grad_at(
             if live[pixel] >= t:
                 continue  # ∂L/∂z is exactly 0 there
             grad = grad_z[pixel * cout : (pixel + 1) * cout]
-            for e in range(i, end):
-                row = grad_w[tap, index[e] - pixel_in * cin]
-                value = values[e]
-                for o in range(cout):
-                    row[o] += value * grad[o]
+            add_scaled(grad_w[tap], grad, index, values, (i, end), pixel_in * cin)
         i = end
 
 
@@ -163,12 +163,7 @@ def _input_deltas_at(
                 if live[pixel] >= t:
                     continue  # ∂L/∂z is exactly 0 there
                 grad = grad_z[pixel * cout : (pixel + 1) * cout]
-                for e in range(i, end):
-                    w = weight[tap, index[e] - pixel_in * cin]
-                    total = zero
-                    for o in range(cout):
-                        total += w[o] * grad[o]
-                    grad_s[e - i] += total
+                dot_rows(grad_s, weight[tap], index, grad, (i, end), pixel_in * cin)
             for e in range(i, end):
                 u[e] = surrogate_pdf(u[e], surrogate) * grad_s[e - i]
             i = end

@@ -6,7 +6,8 @@ computes in batch: ``z[t] = conv(s_in[t])``, ``v[t] = Σ_k ε[k]·z[t − k]``, 
 
 - the convolution is a scatter: each input spike adds one weight column (C_out values) to each
   output pixel it reaches, in a ring of L + 1 synaptic maps ``z``; the spikes of one input pixel
-  (adjacent in the lists) share their targets;
+  (adjacent in the lists) share their targets, and each target row is summed in vector registers
+  over them (:func:`spikegyro.snn.simd.add_rows`);
 - the PSP runs on the output side as the double pole ``(A, D)`` of the truncated alpha kernel
   ε[k] = c·k·pᵏ (k < L), with each input fed a second time L steps later with the tail weights,
   so that the response is exactly 0 from k = L on (the same recursion as
@@ -41,6 +42,7 @@ import numpy as np
 from numba.cpython.unsafe.numbers import trailing_zeros
 
 from spikegyro.kernel_fit import fit_alpha_kernel, fit_exp_kernel
+from spikegyro.snn.simd import add_rows
 
 _MIN_CAPACITY = 1024
 
@@ -230,13 +232,8 @@ def _scatter(
             pixel, tap = fan_pairs[0, k] - first_pixel, fan_pairs[1, k]
             if pixel < 0 or pixel >= live.size:
                 continue  # another tile's
-            # Slice views let LLVM vectorise the loop (no wrap-around checks on indices).
             target = synaptic[pixel * cout : (pixel + 1) * cout]
-            for e in range(i, end):
-                w = weight[tap, index[e] - pixel_in * cin]
-                value = values[e]
-                for o in range(cout):
-                    target[o] += value * w[o]
+            add_rows(target, weight[tap], index, values, (i, end), pixel_in * cin)
             live[pixel] = max(live[pixel], live_until)
         i = end
 
