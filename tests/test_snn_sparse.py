@@ -21,11 +21,13 @@ from spikegyro.snn.layers import GASP, SRMConv, SRMDense, SRMParams
 from spikegyro.snn.sparse import EventDrivenStack, _Plan
 from spikegyro.snn.sparse_forward import (
     _threshold,
+    channel_blocks,
     coo_to_lists,
     dense_to_lists,
     divisor,
     fanout,
     quotient,
+    unblocked,
 )
 from spikegyro.train.loss import angular_velocity_loss
 
@@ -312,6 +314,28 @@ def _dense_spikes(spikes: list[torch.Tensor]) -> list[set[int]]:
 
 
 @pytest.mark.parametrize(
+    ("shape", "dtype", "blocks"),
+    [
+        ((9, 2, 16), np.float32, 1),  # SNN-6's layers 1-3: small enough for one block
+        ((9, 32, 64), np.float32, 1),
+        ((9, 64, 128), np.float32, 2),  # layer 4: 295 kB
+        ((9, 128, 256), np.float32, 4),  # layer 5: 1.2 MB, blocks of 64 channels
+        ((9, 128, 256), np.float64, 4),  # not narrower than 64 channels
+        ((9, 128, 200), np.float32, 2),  # 100 channels each; 50 would be too narrow
+        ((9, 128, 129), np.float32, 1),  # an odd channel count stays whole
+    ],
+)
+def test_channel_blocks_split_the_output_channels_and_unblock_back(shape, dtype, blocks):
+    weight = np.random.default_rng(0).standard_normal(shape).astype(dtype)
+    blocked = channel_blocks(weight)
+    width = shape[2] // blocks
+    assert blocked.shape == (blocks, shape[0], shape[1], width) and blocked.flags.c_contiguous
+    for b in range(blocks):  # block b holds output channels b·width … (b + 1)·width − 1
+        np.testing.assert_array_equal(blocked[b], weight[:, :, b * width : (b + 1) * width])
+    np.testing.assert_array_equal(unblocked(blocked), weight)
+
+
+@pytest.mark.parametrize(
     ("in_hw", "kernel", "stride"), [((9, 7), 3, 2), ((8, 6), 3, 1), ((7, 11), 4, 3)]
 )
 def test_fanout_table_is_the_convolutions_connectivity(in_hw, kernel, stride):
@@ -425,7 +449,7 @@ def _engine_spike_tensors(model: SNN6, x: torch.Tensor) -> list[torch.Tensor]:
     elements = [plan.forward_element(x[b].numpy()) for b in range(x.shape[0])]
     tensors = []
     for i, layer in enumerate(plan.layers[:-1]):
-        channels, (height, width) = layer.weight.shape[2], layer.out_shape
+        channels, (height, width) = layer.out_channels, layer.out_shape
         flat = torch.zeros(x.shape[0], x.shape[-1], height * width * channels, dtype=torch.float64)
         for b, element in enumerate(elements):
             offsets, index, _ = element.inputs[i + 1]

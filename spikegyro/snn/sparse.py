@@ -38,6 +38,7 @@ from spikegyro.snn.sparse_backward import layer_backward, surrogate_pdf
 from spikegyro.snn.sparse_forward import (
     Buffers,
     alpha_constants,
+    channel_blocks,
     coo_to_lists,
     dense_to_lists,
     divisor,
@@ -45,6 +46,7 @@ from spikegyro.snn.sparse_forward import (
     layer_forward,
     quotient,
     refractory_constants,
+    unblocked,
 )
 
 Lists = tuple[np.ndarray, np.ndarray, np.ndarray]
@@ -58,7 +60,7 @@ Kept = dict[str, tuple[np.ndarray, ...]]
 class _Layer:
     """One conv layer as the Numba kernels take it (arrays in the engine's dtype)."""
 
-    weight: np.ndarray  # (kh·kw, C_in, C_out), C-contiguous
+    weight: np.ndarray  # (blocks, kh·kw, C_in, C_out / blocks): channel_blocks
     geometry: np.ndarray  # [stride, input width, output width, kernel width], px
     out_shape: tuple[int, int]
     fan: tuple[np.ndarray, np.ndarray]  # what each input pixel reaches (fanout)
@@ -86,7 +88,7 @@ class _Layer:
         alpha, taps = alpha_constants(conv.srm_kernel.detach().double().cpu().numpy(), dtype)
         weight = conv.weight.detach().permute(2, 3, 1, 0).flatten(0, 1).cpu().numpy()
         return cls(
-            weight=np.ascontiguousarray(weight.astype(dtype)),
+            weight=channel_blocks(weight.astype(dtype)),
             geometry=np.array([conv.stride, in_hw[1], out_hw[1], kernel], np.int64),
             out_shape=out_hw,
             fan=fanout(in_hw, out_hw, kernel, conv.stride),
@@ -99,6 +101,10 @@ class _Layer:
                 [p.theta, p.scale_rho / p.theta, -1.0 / (p.tau_rho * p.theta)], dtype=dtype
             ),
         )
+
+    @property
+    def out_channels(self) -> int:
+        return self.weight.shape[0] * self.weight.shape[3]
 
     @property
     def out_pixels(self) -> int:
@@ -459,7 +465,7 @@ class _Plan:
 
     @property
     def channels(self) -> int:
-        return self.layers[-1].weight.shape[2]
+        return self.layers[-1].out_channels
 
     def forward_element(self, x: np.ndarray | Lists, storage: _Storage | None = None) -> _Element:
         """Forward pass of one (C, H, W, T) input (or its lists); keeps each layer's input and
@@ -514,5 +520,5 @@ class _Plan:
             element.active[i], layer.alpha, layer.taps, element.inputs[i], layer.weight,
             layer.fan, layer.out_pixels, (below, self.layers[lower].surrogate),
         )  # fmt: skip
-        element.grads.append(grad_w)
+        element.grads.append(unblocked(grad_w))
         element.backward_s.append(time.thread_time() - start)

@@ -118,20 +118,24 @@ def _weight_grad_at(
     inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
     fan: tuple[np.ndarray, np.ndarray],
 ) -> None:
-    """∂W[tap, c, :] += value·∂L/∂z[pixel, :] for the inputs of step t."""
+    """∂W[tap, c, :] += value·∂L/∂z[pixel, :] for the inputs of step t, one block of output
+    channels after the other (grad_w: (blocks, kh·kw, C_in, C_out / blocks))."""
     offsets, index, values = inputs
-    cin, cout = grad_w.shape[1], grad_w.shape[2]
+    blocks, cin, width = grad_w.shape[0], grad_w.shape[2], grad_w.shape[3]
+    cout = blocks * width
     div = divisor(cin)
-    i, stop = offsets[t], offsets[t + 1]
-    while i < stop:
-        pixel_in, end = pixel_group(index, i, stop, cin, div)
-        for k in range(fan[0][pixel_in], fan[0][pixel_in + 1]):
-            pixel, tap = fan[1][0, k], fan[1][1, k]
-            if live[pixel] >= t:
-                continue  # ∂L/∂z is exactly 0 there
-            grad = grad_z[pixel * cout : (pixel + 1) * cout]
-            add_scaled(grad_w[tap], grad, index, values, (i, end), pixel_in * cin)
-        i = end
+    for block in range(blocks):
+        i, stop = offsets[t], offsets[t + 1]
+        while i < stop:
+            pixel_in, end = pixel_group(index, i, stop, cin, div)
+            for k in range(fan[0][pixel_in], fan[0][pixel_in + 1]):
+                pixel, tap = fan[1][0, k], fan[1][1, k]
+                if live[pixel] >= t:
+                    continue  # ∂L/∂z is exactly 0 there
+                first = pixel * cout + block * width
+                grad = grad_z[first : first + width]
+                add_scaled(grad_w[block, tap], grad, index, values, (i, end), pixel_in * cin)
+            i = end
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -143,30 +147,34 @@ def _input_deltas_at(
     below: tuple[np.ndarray, np.ndarray, np.ndarray],
     surrogate: np.ndarray,
     fan: tuple[np.ndarray, np.ndarray],
+    partial: np.ndarray,
 ) -> None:
     """δ = ρ(u)·convᵀ(∂L/∂z[t])[index[j]] of the layer below at its pairs of step t (offsets
     (tiles, T + 1): a range per tile), written over their potentials u; surrogate: the layer
-    below's (:func:`surrogate_pdf`)."""
+    below's (:func:`surrogate_pdf`); weight: (blocks, kh·kw, C_in, C_out / blocks), the blocks
+    one after the other, their sums in ``partial`` (as long as the longest range)."""
     offsets, index, u = below
-    cin, cout = weight.shape[1], weight.shape[2]
+    blocks, cin, width = weight.shape[0], weight.shape[2], weight.shape[3]
+    cout = blocks * width
     div = divisor(cin)
-    zero = np.zeros(1, u.dtype)[0]  # a literal 0 would make the sums float64
-    grad_s = np.empty(cin, u.dtype)  # ∂L/∂s of one pixel's pairs (at most one per channel)
     for s in range(offsets.shape[0]):
-        i, stop = offsets[s, t], offsets[s, t + 1]
-        while i < stop:
-            pixel_in, end = pixel_group(index, i, stop, cin, div)
-            for e in range(end - i):
-                grad_s[e] = zero
-            for k in range(fan[0][pixel_in], fan[0][pixel_in + 1]):
-                pixel, tap = fan[1][0, k], fan[1][1, k]
-                if live[pixel] >= t:
-                    continue  # ∂L/∂z is exactly 0 there
-                grad = grad_z[pixel * cout : (pixel + 1) * cout]
-                dot_rows(grad_s, weight[tap], index, grad, (i, end), pixel_in * cin)
-            for e in range(i, end):
-                u[e] = surrogate_pdf(u[e], surrogate) * grad_s[e - i]
-            i = end
+        lo, stop = offsets[s, t], offsets[s, t + 1]
+        partial[: stop - lo] = 0.0
+        for block in range(blocks):
+            i = lo
+            while i < stop:
+                pixel_in, end = pixel_group(index, i, stop, cin, div)
+                for k in range(fan[0][pixel_in], fan[0][pixel_in + 1]):
+                    pixel, tap = fan[1][0, k], fan[1][1, k]
+                    if live[pixel] >= t:
+                        continue  # ∂L/∂z is exactly 0 there
+                    first = pixel * cout + block * width
+                    grad = grad_z[first : first + width]
+                    dot_rows(partial[i - lo :], weight[block, tap], index, grad, (i, end),
+                             pixel_in * cin)  # fmt: skip
+                i = end
+        for e in range(lo, stop):
+            u[e] = surrogate_pdf(u[e], surrogate) * partial[e - lo]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -189,17 +197,22 @@ def layer_backward(
         alpha, taps: the PSP kernel ε[k] = c·k·pᵏ, k < L = ``taps`` steps
             (:func:`spikegyro.snn.sparse_forward.alpha_constants`).
         inputs: (offsets, flat indices, values) of this layer's input, as in the forward pass.
-        weight: (kh·kw, C_in, C_out); fan, out_pixels: as in the forward pass.
+        weight: (blocks, kh·kw, C_in, C_out / blocks)
+            (:func:`spikegyro.snn.sparse_forward.channel_blocks`); fan, out_pixels: as in the
+            forward pass.
         below: ((offsets (tiles, T + 1), flat indices, potentials u) of the active pairs of the
             layer below (the input side), the layer below's surrogate (:func:`surrogate_pdf`)):
             its δ are written over u; an empty index list when they are not wanted.
 
     Returns:
-        ∂L/∂W (kh·kw, C_in, C_out).
+        ∂L/∂W in the blocks of ``weight``.
     """
     act_offsets, act_index, delta = active
     steps = act_offsets.shape[1] - 1
-    cout = weight.shape[2]
+    cout = weight.shape[0] * weight.shape[3]
+    below_offsets = below[0][0]
+    longest = (below_offsets[:, 1:] - below_offsets[:, :-1]).max() if below_offsets.size else 0
+    partial = np.empty(longest, weight.dtype)  # one range of pairs' ∂L/∂s over the blocks
     grad_w = np.zeros_like(weight)
     state = np.zeros((2, out_pixels * cout), weight.dtype)
     grad_z = np.zeros(out_pixels * cout, weight.dtype)
@@ -216,5 +229,5 @@ def layer_backward(
         _adjoint_step(state, grad_z, live, t, alpha)
         _weight_grad_at(grad_w, grad_z, live, t, inputs, fan)
         if below[0][1].size:
-            _input_deltas_at(weight, grad_z, live, t, below[0], below[1], fan)
+            _input_deltas_at(weight, grad_z, live, t, below[0], below[1], fan, partial)
     return grad_w

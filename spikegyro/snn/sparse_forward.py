@@ -30,7 +30,10 @@ pass (:mod:`spikegyro.snn.sparse_backward`) has a non-zero ρ(u). The half-width
 cut above exp(−1/tau_rho) of the peak), so that a neuron at rest (u = 0) is never such a pair.
 
 Spike lists are CSR by step: ``offsets`` (T + 1,) int64 and flat neuron indices
-``(y·W + x)·C + c`` (int32), channels-last like the weights ``(kh·kw, C_in, C_out)``. The
+``(y·W + x)·C + c`` (int32), channels-last like the weights. A layer's weights come in blocks of
+output channels, ``(blocks, kh·kw, C_in, C_out / blocks)`` (:func:`channel_blocks`): the scatter
+and the backward products run block by block, so that a block's weights stay in a core's L2
+cache while every input of the step uses them. The
 geometry of a layer is the int64 array ``[stride, in_width, out_width, kernel_w]`` with the
 fan-out table of :func:`fanout` (the output pixels and taps each input pixel reaches).
 """
@@ -221,21 +224,49 @@ def _scatter(
 ) -> None:
     """Add ``value·W[tap, c, :]`` to the synaptic input map of every output pixel of the tile
     (``first_pixel`` on, as many as ``live`` holds) each input ``start:stop`` reaches (the
-    convolution as a scatter from its non-zero inputs)."""
-    cin, cout = weight.shape[1], weight.shape[2]
+    convolution as a scatter from its non-zero inputs), one block of output channels after the
+    other."""
+    blocks, cin, width = weight.shape[0], weight.shape[2], weight.shape[3]
+    cout = blocks * width
     div = divisor(cin)
     fan_offsets, fan_pairs = fan
-    i = start
-    while i < stop:
-        pixel_in, end = pixel_group(index, i, stop, cin, div)
-        for k in range(fan_offsets[pixel_in], fan_offsets[pixel_in + 1]):
-            pixel, tap = fan_pairs[0, k] - first_pixel, fan_pairs[1, k]
-            if pixel < 0 or pixel >= live.size:
-                continue  # another tile's
-            target = synaptic[pixel * cout : (pixel + 1) * cout]
-            add_rows(target, weight[tap], index, values, (i, end), pixel_in * cin)
-            live[pixel] = max(live[pixel], live_until)
-        i = end
+    for block in range(blocks):
+        i = start
+        while i < stop:
+            pixel_in, end = pixel_group(index, i, stop, cin, div)
+            for k in range(fan_offsets[pixel_in], fan_offsets[pixel_in + 1]):
+                pixel, tap = fan_pairs[0, k] - first_pixel, fan_pairs[1, k]
+                if pixel < 0 or pixel >= live.size:
+                    continue  # another tile's
+                target = synaptic[pixel * cout + block * width : pixel * cout + (block + 1) * width]
+                add_rows(target, weight[block, tap], index, values, (i, end), pixel_in * cin)
+                live[pixel] = max(live[pixel], live_until)
+            i = end
+
+
+_BLOCK_BYTES = 160 * 1024  # of weights: a sixth of a core's L2 cache, beside ∂L/∂z and the state
+_BLOCK_WIDTH = 64  # channels at least: narrower ones cost more in walking inputs than they save
+
+
+def channel_blocks(weight: np.ndarray) -> np.ndarray:
+    """(kh·kw, C_in, C_out) weights as (blocks, kh·kw, C_in, C_out / blocks), C-contiguous: the
+    fewest blocks (a power of two) whose weights fit in _BLOCK_BYTES, each at least _BLOCK_WIDTH
+    channels wide; one block where C_out does not divide so."""
+    taps, cin, cout = weight.shape
+    blocks = 1
+    while (
+        weight.nbytes // blocks > _BLOCK_BYTES and cout % (2 * blocks) == 0
+        and cout // (2 * blocks) >= _BLOCK_WIDTH
+    ):  # fmt: skip
+        blocks *= 2
+    split = weight.reshape(taps, cin, blocks, cout // blocks).transpose(2, 0, 1, 3)
+    return np.ascontiguousarray(split)
+
+
+def unblocked(blocked: np.ndarray) -> np.ndarray:
+    """The (kh·kw, C_in, C_out) array of :func:`channel_blocks`' layout."""
+    blocks, taps, cin, width = blocked.shape
+    return np.ascontiguousarray(blocked.transpose(1, 2, 0, 3)).reshape(taps, cin, blocks * width)
 
 
 def alpha_constants(kernel: np.ndarray, dtype: type) -> tuple[np.ndarray, int]:
@@ -458,7 +489,8 @@ def layer_forward(
 
     Args:
         inputs: offsets, flat indices, values of the input lists (CSR by step; values multiply W).
-        weight: (kh·kw, C_in, C_out), the dtype of the computation (float32 or float64).
+        weight: (blocks, kh·kw, C_in, C_out / blocks) (:func:`channel_blocks`), the dtype of the
+            computation (float32 or float64).
         geometry: [stride, input width, output width, kernel width] (px); out_pixels: output
             height × width; fan: :func:`fanout`.
         alpha: [c, p, −pᴸ, −L·pᴸ] of the PSP kernel ε[k] = c·k·pᵏ for k < L = ``taps``
@@ -478,7 +510,7 @@ def layer_forward(
         (:data:`LayerLists`, their indices and potentials views of out, valid until out is
         written again; (scratch, out) to keep).
     """
-    out_width, cout = geometry[2], weight.shape[2]
+    out_width, cout = geometry[2], weight.shape[0] * weight.shape[3]
     tile_rows = max(1, _TILE_NEURONS // (out_width * cout))
     steps = inputs[0].size - 1
     scratch, out = storage
@@ -544,10 +576,11 @@ def _tile_forward(
     stride, in_width, out_width, kernel = geometry[0], geometry[1], geometry[2], geometry[3]
     steps = in_offsets.size - 1
     pixels = (tile[1] - tile[0]) * out_width
-    neurons = pixels * weight.shape[2]
+    cout = weight.shape[0] * weight.shape[3]
+    neurons = pixels * cout
     dtype = weight.dtype
     # The inputs that reach these rows: a range of flat indices, found by bisection each step.
-    row_size = in_width * weight.shape[1]
+    row_size = in_width * weight.shape[2]
     bounds = (tile[0] * stride * row_size, ((tile[1] - 1) * stride + kernel) * row_size)
     ref_consts, ref_len = refractory
     state = np.zeros((3, neurons), dtype)  # p·A[t−1], p·(D[t−1] + A[t−1]), R[t]
@@ -558,7 +591,7 @@ def _tile_forward(
     offsets = np.zeros((2, steps + 1), np.int64)  # spikes, active pairs
     offsets[:, 0] = start
     counts = start.copy()
-    base = tile[0] * out_width * weight.shape[2]
+    base = tile[0] * out_width * cout
     for t in range(steps):
         z_now = synaptic[t % (taps + 1)]
         step = in_index[in_offsets[t] : in_offsets[t + 1]]
