@@ -109,6 +109,16 @@ def _adjoint_step(
         pixel = end
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _live_tap(
+    pairs: np.ndarray, k: int, live: np.ndarray, t: int, cout: int, offset: int
+) -> tuple[int, int]:
+    """(tap, where ∂L/∂z[pixel, offset:] begins in the flat array) of fan-out entry k (pairs:
+    the fan-out table's (2, n) pixels and taps); −1 where ∂L/∂z is exactly 0 at the pixel."""
+    pixel, tap = pairs[0, k], pairs[1, k]
+    return tap, (-1 if live[pixel] >= t else pixel * cout + offset)
+
+
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _weight_grad_at(
     grad_w: np.ndarray,
@@ -129,12 +139,10 @@ def _weight_grad_at(
         while i < stop:
             pixel_in, end = pixel_group(index, i, stop, cin, div)
             for k in range(fan[0][pixel_in], fan[0][pixel_in + 1]):
-                pixel, tap = fan[1][0, k], fan[1][1, k]
-                if live[pixel] >= t:
-                    continue  # ∂L/∂z is exactly 0 there
-                first = pixel * cout + block * width
-                grad = grad_z[first : first + width]
-                add_scaled(grad_w[block, tap], grad, index, values, (i, end), pixel_in * cin)
+                tap, first = _live_tap(fan[1], k, live, t, cout, block * width)
+                if first >= 0:
+                    grad = grad_z[first : first + width]
+                    add_scaled(grad_w[block, tap], grad, index, values, (i, end), pixel_in * cin)
             i = end
 
 
@@ -165,13 +173,11 @@ def _input_deltas_at(
             while i < stop:
                 pixel_in, end = pixel_group(index, i, stop, cin, div)
                 for k in range(fan[0][pixel_in], fan[0][pixel_in + 1]):
-                    pixel, tap = fan[1][0, k], fan[1][1, k]
-                    if live[pixel] >= t:
-                        continue  # ∂L/∂z is exactly 0 there
-                    first = pixel * cout + block * width
-                    grad = grad_z[first : first + width]
-                    dot_rows(partial[i - lo :], weight[block, tap], index, grad, (i, end),
-                             pixel_in * cin)  # fmt: skip
+                    tap, first = _live_tap(fan[1], k, live, t, cout, block * width)
+                    if first >= 0:
+                        grad = grad_z[first : first + width]
+                        dot_rows(partial[i - lo :], weight[block, tap], index, grad, (i, end),
+                                 pixel_in * cin)  # fmt: skip
                 i = end
         for e in range(lo, stop):
             u[e] = surrogate_pdf(u[e], surrogate) * partial[e - lo]
