@@ -108,9 +108,12 @@ class _Rows:
     """The arrays of a row kernel's call: a row width, a matrix of rows picked by ``index[e] −
     offset`` and the entries' values."""
 
-    def __init__(self, context, builder, signature, args, row_arg: int, matrix_arg: int) -> None:
+    def __init__(
+        self, context, builder, signature, args, row_arg: int, matrix_arg: int, values: bool
+    ) -> None:
         tys = signature.args
         self.builder = builder
+        self.values = context.make_array(tys[3])(context, builder, args[3]) if values else None
         self.row = context.make_array(tys[row_arg])(context, builder, args[row_arg])
         self.matrix = context.make_array(tys[matrix_arg])(context, builder, args[matrix_arg])
         self.index = context.make_array(tys[2])(context, builder, args[2])
@@ -124,6 +127,14 @@ class _Rows:
         b = self.builder
         row = b.sub(_int64(b, b.load(b.gep(self.index.data, [e]))), _int64(b, offset))
         return b.mul(row, self.width)
+
+    def value(self, e: ir.Value) -> ir.Value:
+        """values[e] (argument 3)."""
+        return self.builder.load(self.builder.gep(self.values.data, [e]))
+
+    def row_chunk(self, k: int | ir.Value) -> ir.Value:
+        """Pointer to register k of the row."""
+        return self.chunk(self.row.data, _const(0), k)
 
     def chunk(self, data: ir.Value, offset: ir.Value, k: int | ir.Value) -> ir.Value:
         """Pointer to register k of a row starting at element ``offset`` of ``data``."""
@@ -149,41 +160,36 @@ def add_rows(typingctx, target, rows, index, values, span, offset):
     sig = types.void(target, rows, index, values, span, offset)
 
     def codegen(context, builder, signature, args):
-        r = _Rows(context, builder, signature, args, 0, 1)
-        vals = context.make_array(signature.args[3])(context, builder, args[3])
-        zero = _const(0)
+        r = _Rows(context, builder, signature, args, 0, 1, values=True)
 
-        def unrolled(k: int) -> None:
-            accs = [cgutils.alloca_once(builder, r.vec) for _ in range(k)]
-            for j, acc in enumerate(accs):
-                builder.store(builder.load(r.chunk(r.row.data, zero, j), align=4), acc)
+        def summed(ks) -> None:
+            """Registers ks of the target, each summed over the entries in a register."""
+            targets = [r.row_chunk(k) for k in ks]
+            accs = [cgutils.alloca_once(builder, r.vec) for _ in ks]
+            for at, acc in zip(targets, accs, strict=True):
+                builder.store(builder.load(at, align=4), acc)
             with _span_loop(builder, args[4]) as (e, _):
                 start = r.start_of(e, args[5])
-                v = _splat(builder, builder.load(builder.gep(vals.data, [e])), r.vec)
-                for j, acc in enumerate(accs):
-                    w = builder.load(r.chunk(r.matrix.data, start, j), align=4)
+                v = _splat(builder, r.value(e), r.vec)
+                for k, acc in zip(ks, accs, strict=True):
+                    w = builder.load(r.chunk(r.matrix.data, start, k), align=4)
                     builder.store(builder.fadd(builder.load(acc), builder.fmul(w, v)), acc)
-            for j, acc in enumerate(accs):
-                builder.store(builder.load(acc), r.chunk(r.row.data, zero, j), align=4)
+            for at, acc in zip(targets, accs, strict=True):
+                builder.store(builder.load(acc), at, align=4)
+
+        def unrolled(k: int) -> None:
+            summed(range(k))
 
         def generic() -> None:
             with cgutils.for_range(builder, r.chunks()) as loop:
-                at = r.chunk(r.row.data, zero, loop.index)
-                acc = cgutils.alloca_once(builder, r.vec)
-                builder.store(builder.load(at, align=4), acc)
-                with _span_loop(builder, args[4]) as (e, _):
-                    start = r.start_of(e, args[5])
-                    v = _splat(builder, builder.load(builder.gep(vals.data, [e])), r.vec)
-                    w = builder.load(r.chunk(r.matrix.data, start, loop.index), align=4)
-                    builder.store(builder.fadd(builder.load(acc), builder.fmul(w, v)), acc)
-                builder.store(builder.load(acc), at, align=4)
+                summed([loop.index])
             first, stop = r.scalar_tail()
             with cgutils.for_range_slice(builder, first, stop, _const(1)) as (o, _):
                 at = builder.gep(r.row.data, [o])
                 with _span_loop(builder, args[4]) as (e, _):
                     at_w = builder.gep(r.matrix.data, [builder.add(r.start_of(e, args[5]), o)])
                     w = builder.load(at_w)
-                    v = builder.load(builder.gep(vals.data, [e]))
+                    v = r.value(e)
                     builder.store(builder.fadd(builder.load(at), builder.fmul(w, v)), at)
 
         _by_width(builder, r.width, r.lanes, unrolled, generic)
@@ -201,13 +207,11 @@ def add_scaled(typingctx, rows, row, index, values, span, offset):
     sig = types.void(rows, row, index, values, span, offset)
 
     def codegen(context, builder, signature, args):
-        r = _Rows(context, builder, signature, args, 1, 0)
-        vals = context.make_array(signature.args[3])(context, builder, args[3])
-        zero = _const(0)
+        r = _Rows(context, builder, signature, args, 1, 0, values=True)
 
         def update(e: ir.Value, ks, registers) -> None:
             start = r.start_of(e, args[5])
-            v = _splat(builder, builder.load(builder.gep(vals.data, [e])), r.vec)
+            v = _splat(builder, r.value(e), r.vec)
             for k, g in zip(ks, registers, strict=True):
                 at = r.chunk(r.matrix.data, start, k)
                 total = builder.fadd(builder.load(at, align=4), builder.fmul(g, v, flags=_FAST),
@@ -215,18 +219,18 @@ def add_scaled(typingctx, rows, row, index, values, span, offset):
                 builder.store(total, at, align=4)
 
         def unrolled(n: int) -> None:
-            registers = [builder.load(r.chunk(r.row.data, zero, k), align=4) for k in range(n)]
+            registers = [builder.load(r.row_chunk(k), align=4) for k in range(n)]
             with _span_loop(builder, args[4]) as (e, _):
                 update(e, range(n), registers)
 
         def generic() -> None:  # rows in memory, entry by entry, as a Numba loop would
             with _span_loop(builder, args[4]) as (e, _):
                 with cgutils.for_range(builder, r.chunks()) as loop:
-                    g = builder.load(r.chunk(r.row.data, zero, loop.index), align=4)
+                    g = builder.load(r.row_chunk(loop.index), align=4)
                     update(e, [loop.index], [g])
                 first, stop = r.scalar_tail()
                 start = r.start_of(e, args[5])
-                v = builder.load(builder.gep(vals.data, [e]))
+                v = r.value(e)
                 with cgutils.for_range_slice(builder, first, stop, _const(1)) as (o, _):
                     g = builder.load(builder.gep(r.row.data, [o]))
                     at = builder.gep(r.matrix.data, [builder.add(start, o)])
@@ -249,10 +253,9 @@ def dot_rows(typingctx, out, rows, index, row, span, offset):
     sig = types.void(out, rows, index, row, span, offset)
 
     def codegen(context, builder, signature, args):
-        r = _Rows(context, builder, signature, args, 3, 1)
+        r = _Rows(context, builder, signature, args, 3, 1, values=False)
         res = context.make_array(signature.args[0])(context, builder, args[0])
         first_e = _int64(builder, cgutils.unpack_tuple(builder, args[4], 2)[0])
-        zero = _const(0)
 
         def accumulate(e: ir.Value, total: ir.Value) -> None:
             at = builder.gep(res.data, [builder.sub(e, first_e)])
@@ -263,7 +266,7 @@ def dot_rows(typingctx, out, rows, index, row, span, offset):
             terms = []
             for k in range(n):
                 at = k if isinstance(first, int) else builder.add(first, _const(k))
-                g = registers[k] if registers else builder.load(r.chunk(r.row.data, zero, at))
+                g = registers[k] if registers else builder.load(r.row_chunk(at))
                 w = builder.load(r.chunk(r.matrix.data, start, at), align=4)
                 terms.append(builder.fmul(w, g, flags=_FAST))
             while len(terms) > 1:  # pairwise: independent additions, not a chain
@@ -272,7 +275,7 @@ def dot_rows(typingctx, out, rows, index, row, span, offset):
             return terms[0]
 
         def unrolled(n: int) -> None:
-            registers = [builder.load(r.chunk(r.row.data, zero, k), align=4) for k in range(n)]
+            registers = [builder.load(r.row_chunk(k), align=4) for k in range(n)]
             with _span_loop(builder, args[4]) as (e, _):
                 total = block(r.start_of(e, args[5]), 0, n, registers)
                 accumulate(e, _horizontal_sum(builder, total, r.lanes))
@@ -288,7 +291,7 @@ def dot_rows(typingctx, out, rows, index, row, span, offset):
                     first = builder.mul(loop.index, _const(4))
                     for k, acc in enumerate(accs):
                         at = builder.add(first, _const(k))
-                        g = builder.load(r.chunk(r.row.data, zero, at), align=4)
+                        g = builder.load(r.row_chunk(at), align=4)
                         w = builder.load(r.chunk(r.matrix.data, start, at), align=4)
                         total = builder.fadd(
                             builder.load(acc), builder.fmul(w, g, flags=_FAST), flags=_FAST

@@ -179,7 +179,8 @@ class _Element:
     pooled: np.ndarray | None = None  # (features, T)
     forward_s: list[float] = field(default_factory=list)  # per layer
     backward_s: list[float] = field(default_factory=list)  # per layer, last layer first
-    grads: list[np.ndarray] = field(default_factory=list)  # weight gradients, last layer first
+    # weight gradients in the layers' channel blocks (channel_blocks), last layer first
+    grads: list[np.ndarray] = field(default_factory=list)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -358,7 +359,8 @@ class EventDrivenStack:
             total = per_element[0][i].copy()
             for element in per_element[1:]:
                 total += element[i]
-            shaped = total.reshape(*conv.weight.shape[2:], *total.shape[1:])  # (kh, kw, in, out)
+            flat = unblocked(total)  # (kh·kw, in, out)
+            shaped = flat.reshape(*conv.weight.shape[2:], *flat.shape[1:])  # (kh, kw, in, out)
             grads.append(torch.from_numpy(shaped).permute(3, 2, 0, 1).contiguous().to(conv.weight))
         return grads
 
@@ -503,7 +505,7 @@ class _Plan:
         element's active potentials are overwritten with δ."""
         for i in range(len(self.layers) - 1, self.first - 1, -1):
             self.backward_layer(element, i, grad_pooled)
-        return element.grads[::-1]
+        return [unblocked(grad) for grad in element.grads[::-1]]
 
     def backward_layer(self, element: _Element, i: int, grad_pooled: np.ndarray) -> None:
         """Layer i of :meth:`backward_element` (layers above it done): its weight gradient, and
@@ -520,5 +522,5 @@ class _Plan:
             element.active[i], layer.alpha, layer.taps, element.inputs[i], layer.weight,
             layer.fan, layer.out_pixels, (below, self.layers[lower].surrogate),
         )  # fmt: skip
-        element.grads.append(unblocked(grad_w))
+        element.grads.append(grad_w)
         element.backward_s.append(time.thread_time() - start)
