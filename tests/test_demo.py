@@ -37,7 +37,7 @@ def test_demo_runs_end_to_end_and_writes_its_summary(tmp_path):
 
 def _run_dir(root, name, method, scale):
     """An ``evaluate`` output folder from the shipped weights' metrics, renamed and rescaled."""
-    data = json.loads((PRETRAINED_SNN6.parent / "test_metrics.json").read_text())
+    data = json.loads((PRETRAINED_SNN6.parent / "snn6" / "test_metrics.json").read_text())
     data["model"].update(name=name, method=method)
     if method != "checkpoint":  # CMax: raw events, no spikes, no checkpoint
         for key in ("spikes", "input", "source", "checkpoint_model"):

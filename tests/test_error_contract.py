@@ -98,6 +98,7 @@ CASES: dict[str, str] = {
     "evaluate-out-is-file": "evaluate --data {data} --out {existing.csv}",
     "evaluate-zero-limit": "evaluate --data {data} --out {out}/e --limit 0",
     "evaluate-bad-model": "evaluate --data {data} --out {out}/e --model bogus",
+    "evaluate-unknown-bundled-name": "evaluate --data {data} --out {out}/e --checkpoint snn7",
     "evaluate-decreasing-bins": "evaluate --data {data} --out {out}/e --speed-bins 0,50,20",
     # evaluate-real
     "real-out-is-file": "evaluate-real {good.h5} --out {existing.csv}",
@@ -124,6 +125,7 @@ CASES: dict[str, str] = {
     "train-zero-batch": "train --data {data} --out {out}/t --batch-size 0",
     "train-negative-lr": "train --data {data} --out {out}/t --lr -1",
     "train-garbage-init": "train --data {data} --out {out}/t --init {garbage.pt}",
+    "train-unknown-bundled-init": "train --data {data} --out {out}/t --init snn7",
     "train-missing-data": "train --data {root}/missing --out {out}/t",
     "train-out-is-file": "train --data {data} --out {existing.csv}",
     "train-bad-model": "train --data {data} --out {out}/t --model bogus",
@@ -136,6 +138,7 @@ CASES: dict[str, str] = {
     "predict-unknown-output": "predict {good.h5} --out {out}/p.xyz",
     "predict-checkpoint-folder": "predict {good.h5} --checkpoint {dir} --out {out}/p.csv",
     "predict-garbage-checkpoint": "predict {good.h5} --checkpoint {garbage.pt} --out {out}/p.csv",
+    "predict-unknown-bundled-name": "predict {good.h5} --checkpoint snn7 --out {out}/p.csv",
     "predict-zero-intrinsics": "predict {good.h5} --intrinsics 0 0 120 90 --out {out}/p.csv",
     "predict-out-is-folder": "predict {good.h5} --out {existing_dir}",
     "predict-bad-row": "predict {bad_row.txt} --out {out}/p.csv",

@@ -1,12 +1,23 @@
-"""The shipped SNN-6 loads and regresses ω on fresh simulated data far better than the mean."""
+"""Bundled weights by name, and the shipped models: each loads, and regresses ω on fresh
+simulated data far better than the mean."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
+from spikegyro.errors import InputError
 from spikegyro.evaluate.metrics import mean_euclidean_error, median_relative_error
-from spikegyro.models.registry import PRETRAINED_SNN6, load_checkpoint
+from spikegyro.models.registry import (
+    PRETRAINED_DIR,
+    PRETRAINED_SNN6,
+    bundled_names,
+    load_checkpoint,
+    model_card,
+    read_checkpoint,
+    resolve_checkpoint,
+)
 from spikegyro.sim.dataset import SimConfig, generate_dataset
 from spikegyro.train.data import encode_window, fixed_windows
 
@@ -32,3 +43,48 @@ def test_shipped_snn6_beats_the_mean_predictor_on_unseen_scenes(tmp_path) -> Non
     # Relay measurements: 0.22 on 320 test windows; a small split scatters around that.
     assert snn_rel < 0.45, snn_rel
     assert mean_euclidean_error(pred, gt) < 0.5 * mean_euclidean_error(mean, gt)
+
+
+def test_every_bundled_model_is_a_checkpoint_with_a_model_card() -> None:
+    names = bundled_names()
+    assert "snn6" in names
+    assert names == sorted(p.stem for p in PRETRAINED_DIR.iterdir() if p.suffix == ".pt")
+    for name in names:
+        card = model_card(name).read_text(encoding="utf-8")
+        assert f"`{name}`" in card, f"{name}.md does not name its model"
+        payload = read_checkpoint(name)
+        assert set(payload) >= {"model", "model_kwargs", "input", "state_dict"}
+        # weights only: no optimizer state or other training leftovers in the package
+        assert not {"optimizer", "scheduler", "optimizer_state_dict"} & set(payload), name
+
+
+def test_names_and_paths_resolve_to_the_same_file(tmp_path, monkeypatch) -> None:
+    assert resolve_checkpoint("snn6") == PRETRAINED_SNN6
+    assert resolve_checkpoint(PRETRAINED_SNN6) == PRETRAINED_SNN6
+    own = tmp_path / "mine.pt"
+    own.write_bytes(PRETRAINED_SNN6.read_bytes())
+    assert resolve_checkpoint(own) == own
+    # a bare word in the working folder is a file when no bundled model has that name ...
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "weights").write_bytes(b"x")
+    assert resolve_checkpoint("weights").name == "weights"
+    # ... and the bundled model when one has: ./snn6 names the file
+    (tmp_path / "snn6").write_bytes(b"x")
+    assert resolve_checkpoint("snn6") == PRETRAINED_SNN6
+    assert resolve_checkpoint("./snn6").resolve() == (tmp_path / "snn6").resolve()
+
+
+@pytest.mark.parametrize(
+    ("spec", "says"),
+    [
+        ("snn7", "not a bundled model and no such checkpoint file"),
+        ("runs/x/best.pt", "no such checkpoint file"),
+        (".", "is a folder"),
+    ],
+)
+def test_an_unknown_name_lists_the_bundled_ones(spec, says) -> None:
+    with pytest.raises(InputError) as info:
+        resolve_checkpoint(spec, "--init")
+    message = str(info.value)
+    assert "\n" not in message and message.startswith(f"--init {spec}: {says}")
+    assert message.endswith(f"one of: {', '.join(bundled_names())}.")

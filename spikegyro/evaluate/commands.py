@@ -25,6 +25,7 @@ from spikegyro.evaluate.real import (
     run_real_evaluation,
 )
 from spikegyro.evaluate.simulated import run_evaluation
+from spikegyro.pretrained import checkpoint_help
 from spikegyro.stream.predict import WARMUP_STEPS
 
 SPEED_BINS_HELP = (
@@ -38,8 +39,7 @@ def evaluate(
     checkpoint: Path = typer.Option(
         None,
         "--checkpoint",
-        help="spikegyro checkpoint or the paper's official weights (default: the shipped "
-        "pretrained SNN-6).",
+        help=checkpoint_help("spikegyro checkpoint or the paper's official weights"),
     ),
     model: str = typer.Option(
         None, "--model", help="A non-learned method instead of a checkpoint: cmax."
@@ -100,9 +100,7 @@ def evaluate_real(
         "folder by default).",
     ),
     intrinsics: tuple[float, float, float, float] = options.INTRINSICS,
-    checkpoint: Path = typer.Option(
-        None, "--checkpoint", help="SNN checkpoint (default: the shipped pretrained SNN-6)."
-    ),
+    checkpoint: Path = typer.Option(None, "--checkpoint", help=checkpoint_help("SNN checkpoint")),
     windows_ms: float = typer.Option(
         None,
         "--windows-ms",

@@ -45,7 +45,7 @@ from rich.progress import Progress
 
 from spikegyro.baselines import cmax
 from spikegyro.baselines.mean import training_mean_omega
-from spikegyro.checks import check_input, check_output_dir
+from spikegyro.checks import check_output_dir
 from spikegyro.errors import InputError
 from spikegyro.evaluate import metrics
 from spikegyro.evaluate.bins import (
@@ -70,6 +70,7 @@ from spikegyro.events.imu import (
 )
 from spikegyro.events.io import atomic_dir, read_gyro, read_recording
 from spikegyro.events.windows import BIN_US, bin_means, event_windows, time_windows
+from spikegyro.pretrained import resolve_checkpoint
 from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_engine
 from spikegyro.stream.predict import WARMUP_STEPS, StreamPredictor, event_mapper, model_camera
 from spikegyro.stream.stateful import StreamingSNN
@@ -381,7 +382,7 @@ def plan_real_evaluation(inputs: RealInputs, config: RealEvalConfig) -> RealPlan
     """
     recording = inputs.recording
     check_output_dir(inputs.out_dir)
-    check_input(inputs.checkpoint, "--checkpoint")
+    resolve_checkpoint(inputs.checkpoint)
     _check_config(config)
     offset_ms = parse_gyro_offset(config.gyro_offset)
     rotation = None if inputs.imu_to_camera is None else imu_rotation(inputs.imu_to_camera)

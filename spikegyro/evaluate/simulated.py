@@ -56,7 +56,12 @@ from spikegyro.evaluate.spikes import spike_statistics, spike_table
 from spikegyro.events.io import atomic_dir, atomic_path
 from spikegyro.events.plot import plot_events_and_omega
 from spikegyro.models.official import load_official
-from spikegyro.models.registry import CHECKPOINT_FORMAT, PRETRAINED_SNN6, load_checkpoint
+from spikegyro.models.registry import (
+    CHECKPOINT_FORMAT,
+    PRETRAINED_SNN6,
+    load_checkpoint,
+    resolve_checkpoint,
+)
 from spikegyro.train.data import InputSpec, Window, fixed_windows
 from spikegyro.train.infer import predict_windows, spec_of
 
@@ -76,13 +81,12 @@ def _is_official(path: Path) -> bool:
 
 
 def load_model(checkpoint: str | os.PathLike) -> tuple[torch.nn.Module, dict[str, Any], str]:
-    """Load a spikegyro checkpoint or the paper's official one; returns (model, payload, name).
+    """Load a spikegyro checkpoint (a file or a bundled name) or the paper's official one; returns
+    (model, payload, name).
 
     The official SNN-6 takes the paper's input: 100 ms of 240x180 spikes, omega every 1 ms.
     """
-    path = Path(checkpoint)
-    if not path.exists():
-        raise InputError(f"{path}: no such checkpoint file.")
+    path = resolve_checkpoint(checkpoint)
     if _is_official(path):
         payload = {"model": "snn6", "input": InputSpec().as_dict(), "extra": {"official": True}}
         return load_official(path), payload, "SNN-6 (official)"
@@ -301,6 +305,8 @@ def _check_options(options: EvalOptions) -> tuple[Path | None, str]:
         raise InputError("give either --checkpoint CKPT or --model cmax, not both.")
     if checkpoint is None and model is None:
         checkpoint = PRETRAINED_SNN6
+    if checkpoint is not None:
+        checkpoint = resolve_checkpoint(checkpoint)
     if model is not None and model not in MODEL_CHOICES:
         raise InputError(f"--model {model}: choose one of {', '.join(MODEL_CHOICES)}.")
     return checkpoint, options.device or ("cuda" if torch.cuda.is_available() else "cpu")

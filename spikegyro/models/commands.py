@@ -9,10 +9,13 @@ from rich.console import Console
 
 from spikegyro.checks import check_output_file
 from spikegyro.models.nir import export_nir
+from spikegyro.pretrained import checkpoint_help
 
 
 def export_nir_command(
-    checkpoint: Path = typer.Argument(..., help="spikegyro SNN-6 checkpoint (.pt)."),
+    checkpoint: Path = typer.Argument(
+        ..., help=checkpoint_help("spikegyro SNN-6 checkpoint", None)
+    ),
     out: Path = typer.Argument(..., help="Output NIR file (HDF5, e.g. snn6.nir)."),
 ) -> None:
     """Write SNN-6 as a NIR graph (CubaLIF neurons; needs the 'nir' extra).

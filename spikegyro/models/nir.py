@@ -252,7 +252,7 @@ def export_nir(checkpoint: str | os.PathLike, out: str | os.PathLike) -> Path:
     The input size is the checkpoint's sensor times its scale (what ``encode_window`` feeds).
     """
     nir = require_nir()
-    payload = read_checkpoint(checkpoint)
+    payload = read_checkpoint(checkpoint, "CHECKPOINT")
     if payload["model"] != "snn6":
         raise InputError(
             f"{checkpoint}: a '{payload['model']}' checkpoint; only SNN-6 maps onto NIR neurons."

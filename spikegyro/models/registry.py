@@ -29,13 +29,21 @@ from typing import Any
 import torch
 from torch import nn
 
-from spikegyro.checks import check_input
 from spikegyro.errors import InputError
+from spikegyro.pretrained import (  # noqa: F401  (re-exported: the registry's API)
+    DEFAULT_NAME,
+    PRETRAINED_DIR,
+    bundled_names,
+    bundled_path,
+    model_card,
+    resolve_checkpoint,
+)
 
 CHECKPOINT_FORMAT = "spikegyro-checkpoint/1"
 
-PRETRAINED_SNN6 = Path(__file__).resolve().parents[1] / "data" / "pretrained" / "snn6.pt"
-"""The shipped pretrained SNN-6 (see README); the default model of ``predict`` and ``evaluate``."""
+PRETRAINED_SNN6 = bundled_path(DEFAULT_NAME)
+"""The shipped pretrained SNN-6 (model card ``snn6.md``); the default model of ``predict`` and
+``evaluate``."""
 
 _REGISTRY: dict[str, Callable[..., nn.Module]] = {}
 
@@ -119,9 +127,10 @@ def training_total(payload: dict[str, Any]) -> dict[str, float]:
     }
 
 
-def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
-    """Load a checkpoint dict (on the CPU), with clear errors for missing or foreign files."""
-    path = check_input(path, "checkpoint")
+def read_checkpoint(path: str | os.PathLike, option: str = "checkpoint") -> dict[str, Any]:
+    """Load a checkpoint dict (on the CPU) from a file or a bundled name (``"ann6"``), with clear
+    errors for missing or foreign files; ``option`` names the source in error messages."""
+    path = resolve_checkpoint(path, option)
     try:
         payload = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as exc:  # torch raises many types for corrupt files
@@ -134,9 +143,12 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     return payload
 
 
-def load_checkpoint(path: str | os.PathLike) -> tuple[nn.Module, dict[str, Any]]:
-    """Rebuild the model stored in ``path``; returns (model in eval mode, checkpoint dict)."""
-    payload = read_checkpoint(path)
+def load_checkpoint(
+    path: str | os.PathLike, option: str = "checkpoint"
+) -> tuple[nn.Module, dict[str, Any]]:
+    """Rebuild the model stored in ``path`` (a file or a bundled name); returns (model in eval
+    mode, checkpoint dict)."""
+    payload = read_checkpoint(path, option)
     model = build_model(payload["model"], **payload["model_kwargs"])
     try:
         model.load_state_dict(payload["state_dict"])

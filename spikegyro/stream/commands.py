@@ -10,6 +10,7 @@ from rich.console import Console
 
 from spikegyro import options
 from spikegyro.errors import InputError
+from spikegyro.pretrained import checkpoint_help
 from spikegyro.stream.console import (
     EVENTS,
     PREDICTIONS_OUT,
@@ -44,8 +45,7 @@ WINDOW_MS = typer.Option(
 CHECKPOINT = typer.Option(
     None,
     "--checkpoint",
-    help="Trained SNN checkpoint (default: the shipped pretrained SNN-6, "
-    "spikegyro/data/pretrained/snn6.pt).",
+    help=checkpoint_help("Trained SNN checkpoint"),
 )
 CALIB = typer.Option(
     None,

@@ -18,8 +18,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from spikegyro.checks import check_input
 from spikegyro.errors import InputError
+from spikegyro.pretrained import DEFAULT_NAME, bundled_path, resolve_checkpoint
 from spikegyro.stream.stateful import SNNSpec, SRMLayerSpec, StreamingSNN
 
 if TYPE_CHECKING:
@@ -27,9 +27,9 @@ if TYPE_CHECKING:
 
     from spikegyro.stream.predict import PredictorFactory
 
-DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "pretrained" / "snn6.pt"
-"""The shipped pretrained SNN-6 (``spikegyro.models.registry.PRETRAINED_SNN6``, spelled out here
-because importing :mod:`spikegyro.models` imports torch)."""
+DEFAULT_CHECKPOINT = bundled_path(DEFAULT_NAME)
+"""The shipped pretrained SNN-6 (``spikegyro.models.registry.PRETRAINED_SNN6``, taken from the
+torch-free :mod:`spikegyro.pretrained` because importing :mod:`spikegyro.models` imports torch)."""
 
 SPEC_CACHE_VERSION = 1
 
@@ -167,16 +167,9 @@ def _check_streamable(path: Path, meta: dict[str, Any]) -> None:
 def load_streaming_spec(path: str | os.PathLike) -> tuple[SNNSpec, dict[str, Any]]:
     """The :class:`SNNSpec` of a checkpoint and its metadata (format, model, model_kwargs,
     input; no weights), from the spec cache when it holds this exact file, else through torch
-    (then cached; a cache that cannot be written is skipped)."""
-    path = Path(path)
-    if not path.exists():
-        if path == DEFAULT_CHECKPOINT:
-            raise InputError(
-                f"{path}: no pretrained model is installed; train one with 'spikegyro train' and "
-                "pass --checkpoint PATH."
-            )
-        raise InputError(f"{path}: no such checkpoint file.")
-    check_input(path, "checkpoint")
+    (then cached; a cache that cannot be written is skipped). ``path``: a file or a bundled
+    name."""
+    path = resolve_checkpoint(path)
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     cached = spec_cache_dir() / f"snn-spec-{digest[:24]}.npz"
     if cached.exists():
@@ -227,6 +220,7 @@ def load_engine(
     the exact event-driven engine on ``threads`` CPU threads, else (a torch device) the batched
     approximate path, segments of ``segment_ms`` after ``context_ms`` of warm-up, ``batch``
     segments a pass (None: from memory)."""
+    path = resolve_checkpoint(path)
     if device == "stream":
         try:
             return load_streaming_model(path, threads=threads)

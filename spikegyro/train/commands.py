@@ -24,6 +24,7 @@ import typer
 from rich.console import Console
 
 from spikegyro.errors import InputError
+from spikegyro.pretrained import checkpoint_help
 from spikegyro.train import distributed
 from spikegyro.train.loop import TrainResult, resume_config, train
 from spikegyro.train.presets import PRESETS, SPARSE_DEFAULT_CUT, TrainConfig, resolve_config
@@ -64,7 +65,7 @@ OPTION_HELP: dict[str, str] = {
     "model": "snn6, snn6-grid, ann6 or resnet50.",
     "input": "spikes (SNN), voxel or frames (ANNs).",
     "model_kwargs": "Model constructor arguments as JSON.",
-    "init": "Start from this checkpoint's weights.",
+    "init": checkpoint_help("Start from these weights", None),
     "freeze": "SNN: keep the first N spiking layers' weights fixed (fine-tune the rest).",
     "scale": "Factor on event coordinates (0.5: 240x180->120x90).",
     "window_ms": "Window length, ms.",

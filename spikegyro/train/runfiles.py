@@ -227,7 +227,7 @@ def load_resume(
 
 def load_init(model: nn.Module, config: TrainConfig) -> dict[str, float]:
     """Start ``model`` from the weights of ``config.init``; returns the training behind them."""
-    payload = read_checkpoint(config.init)
+    payload = read_checkpoint(config.init, "--init")
     state = payload["state_dict"]
     if isinstance(model, SNN6) and payload["model"] in ("snn6", "snn6-grid"):
         # another variant (grid readout, log-polar input, time constants): carry the weights over
