@@ -54,7 +54,11 @@ from scipy.ndimage import gaussian_filter
 from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 
-from spikegyro.baselines import cmax
+from spikegyro.cmax.config import CMaxConfig
+from spikegyro.cmax.live import CMaxEstimator
+from spikegyro.cmax.problem import camera_from_attrs, make_problem
+from spikegyro.cmax.search import estimate_window
+from spikegyro.cmax.series import predict_stream
 from spikegyro.events.calib import load_calibration
 from spikegyro.events.io import read_recording
 
@@ -132,7 +136,7 @@ def accuracy(folders: list[Path], grid_points: int) -> list[np.ndarray]:
     for folder in folders:
         rec = read_recording(folder / "events.txt")
         calib = load_calibration(folder / "calib.txt")
-        ours = cmax.estimate_window(rec.events, calib)
+        ours = estimate_window(rec.events, calib)
         estimates.append(ours)
         ref = plain_cmax(folder, grid_points) if grid_points > 0 else np.full(3, np.nan)
         diff = np.degrees(np.linalg.norm(ours - ref))
@@ -158,7 +162,7 @@ def translboxes(folder: Path) -> None:
 
     rec = read_recording(folder / "events.txt")
     gyro = np.loadtxt(folder / "gyro.txt")
-    t_us, omega = cmax.predict_stream(rec.events, Calibration(245.0, 245.0, 120.0, 90.0))
+    t_us, omega = predict_stream(rec.events, Calibration(245.0, 245.0, 120.0, 90.0))
     truth = np.column_stack([np.interp(t_us * 1e-6, gyro[:, 0], gyro[:, i]) for i in (1, 2, 3)])
     err = np.degrees(np.linalg.norm(omega - truth, axis=1))
     bias = np.radians([3.5, -1.0, 0.0])  # the gyro's bias (README): not removed in gyro.txt
@@ -171,11 +175,11 @@ def translboxes(folder: Path) -> None:
 
 
 COLD_IMPORTS = """
-from spikegyro.baselines.cmax import estimate_window
+from spikegyro.cmax.search import estimate_window
 """
 COLD = """
 import sys, time
-from spikegyro.baselines.cmax import estimate_window
+from spikegyro.cmax.search import estimate_window
 from spikegyro.events.calib import load_calibration
 from spikegyro.events.io import read_recording
 rec = read_recording(sys.argv[1] + '/events.txt')
@@ -208,12 +212,12 @@ def speed(folders: list[Path], estimates: list[np.ndarray], cold_runs: int) -> N
     for _ in range(5):
         for ev, calib, est in zip(recs, calibs, estimates, strict=True):
             init = est + np.radians(rng.normal(0.0, 20.0, 3))
-            cmax.estimate_window(ev, calib, init=init, grid=False)
+            estimate_window(ev, calib, init=init, grid=False)
             n += 1
     warm_cpu = (time.process_time() - c0) / n
     c0 = time.process_time()
     for ev, calib in zip(recs, calibs, strict=True):
-        cmax.estimate_window(ev, calib)
+        estimate_window(ev, calib)
     search_cpu = (time.process_time() - c0) / len(recs)
     sizes = [len(ev) for ev in recs]
     print(
@@ -227,7 +231,7 @@ def speed(folders: list[Path], estimates: list[np.ndarray], cold_runs: int) -> N
     for _ in range(10):
         plain_contrast(rays, dt, estimates[0], k)
     plain_eval = (time.process_time() - c0) / 10
-    problem = cmax.make_problem(recs[0], calibs[0], cmax.CMaxConfig(), np.random.default_rng(0))
+    problem = make_problem(recs[0], calibs[0], CMaxConfig(), np.random.default_rng(0))
     c0 = time.process_time()
     for _ in range(50):
         problem.contrast(estimates[0], 1, 1.0, gradient=True)
@@ -271,9 +275,8 @@ def simulate_roll(seconds: float, seed: int):
 
 def stream_once(events, camera, gyro, rate_hz: float, bias=None) -> dict:
     """One streaming run: per-axis MAE (deg/s) from 50 ms on, latency, CPU-s per s of events."""
-    from spikegyro.baselines.cmax_stream import CMaxEstimator
 
-    est = CMaxEstimator(camera, cmax.CMaxConfig(rate_hz=rate_hz))
+    est = CMaxEstimator(camera, CMaxConfig(rate_hz=rate_hz))
     c0 = time.process_time()
     out = est.run(events)
     cpu = time.process_time() - c0
@@ -309,7 +312,7 @@ def previous_engine_cpu_per_s(events, camera) -> float:
     previous = None
     for i0 in range(0, max(len(events) - 30_000, 0) + 1, 10_000):
         window = events[i0 : i0 + 30_000]
-        previous = cmax.estimate_window(window, camera, init=previous, grid=previous is None)
+        previous = estimate_window(window, camera, init=previous, grid=previous is None)
     return (time.process_time() - c0) / ((int(events.t[-1]) - int(events.t[0])) / 1e6)
 
 
@@ -351,13 +354,13 @@ def stream(args: argparse.Namespace) -> None:
     sims = sorted(args.sim.glob("*.h5")) if args.sim else []
     for path in sims:
         rec = read_recording(path)
-        camera = cmax.camera_from_attrs(rec.attrs, *rec.events.sensor_size)
+        camera = camera_from_attrs(rec.attrs, *rec.events.sensor_size)
         rate = len(rec.events) / (rec.events.duration_us / 1e6) / 1e6
         recordings.append((f"sim {path.stem} {rate:.2f}M/s", rec.events, camera, rec.gyro, None))
     stream_accuracy(recordings)
     if sims:
         rec = read_recording(sims[0])
-        speed_table(rec.events, cmax.camera_from_attrs(rec.attrs, *rec.events.sensor_size))
+        speed_table(rec.events, camera_from_attrs(rec.attrs, *rec.events.sensor_size))
     print(f"load average: {os.getloadavg()[0]:.1f} (CPU seconds; wall time suffers more)")
 
 

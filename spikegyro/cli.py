@@ -44,8 +44,8 @@ _COMMANDS: dict[str, str] = {
     "train": "spikegyro.train.commands:train_command",
     "relay-log": "spikegyro.train.commands:relay_log_command",
     "predict": "spikegyro.stream.commands:predict",
-    "baseline": "spikegyro.baselines.commands:app",
-    "calibrate-imu": "spikegyro.baselines.commands:calibrate_imu",
+    "baseline": "spikegyro.cmax.commands:app",
+    "calibrate-imu": "spikegyro.cmax.commands:calibrate_imu",
 }
 """Command name -> ``module:attribute`` (a command function or a Typer sub-app). A stage's module
 is imported only when its command runs or ``--help`` lists it, so ``spikegyro predict`` does not

@@ -13,8 +13,18 @@ import pytest
 from scipy.ndimage import gaussian_filter
 from scipy.spatial.transform import Rotation
 
-from spikegyro.baselines import cmax, cmax_iwe
-from spikegyro.baselines.cmax_windows import WindowPolicy, hot_pixel_mask
+from spikegyro.cmax import iwe as cmax_iwe
+from spikegyro.cmax.config import CMaxConfig
+from spikegyro.cmax.problem import default_camera, make_problem
+from spikegyro.cmax.search import estimate_window, maximize_bfgs
+from spikegyro.cmax.series import (
+    SIMULATED_CONFIG,
+    hold_per_ms,
+    per_ms,
+    predict_stream,
+    predict_windows,
+)
+from spikegyro.cmax.windows import WindowPolicy, hot_pixel_mask
 from spikegyro.events.calib import Calibration
 from spikegyro.events.core import EventArray, Recording
 
@@ -108,8 +118,8 @@ def test_warp_matches_scipy_rotation_and_projection() -> None:
 @pytest.mark.parametrize("scale", [1, 2])
 def test_contrast_gradient_matches_finite_differences(omega: list[float], scale: int) -> None:
     events = point_track_events(np.radians([100.0, -60.0, 150.0]), seed=7, points=400)
-    problem = cmax.make_problem(
-        events, cmax.default_camera(WIDTH, HEIGHT), cmax.CMaxConfig(), np.random.default_rng(0)
+    problem = make_problem(
+        events, default_camera(WIDTH, HEIGHT), CMaxConfig(), np.random.default_rng(0)
     )
     omega_a = np.array(omega)
     _, grad = problem.contrast(omega_a, scale, 1.5, gradient=True)
@@ -153,7 +163,7 @@ def test_maximize_bfgs_finds_the_peak_of_a_skewed_quadratic() -> None:
         d = x - peak
         return -0.5 * float(d @ a @ d), -(a @ d)
 
-    np.testing.assert_allclose(cmax.maximize_bfgs(objective, np.zeros(3), 50).x, peak, atol=1e-3)
+    np.testing.assert_allclose(maximize_bfgs(objective, np.zeros(3), 50).x, peak, atol=1e-3)
 
 
 @pytest.mark.parametrize(
@@ -163,14 +173,14 @@ def test_maximize_bfgs_finds_the_peak_of_a_skewed_quadratic() -> None:
 def test_recovers_omega_of_point_tracks(omega_dps: tuple[float, float, float]) -> None:
     omega = np.radians(omega_dps)
     events = point_track_events(omega, seed=3)
-    assert_close_omega(cmax.estimate_window(events), omega)
+    assert_close_omega(estimate_window(events), omega)
 
 
 def test_global_search_survives_fast_motion_and_a_wrong_warm_start() -> None:
     omega = np.radians([-350.0, 420.0, -250.0])  # ~600 deg/s: 30 px of blur over 30 ms
     events = point_track_events(omega, seed=4)
-    assert_close_omega(cmax.estimate_window(events), omega)
-    assert_close_omega(cmax.estimate_window(events, init=-omega), omega)
+    assert_close_omega(estimate_window(events), omega)
+    assert_close_omega(estimate_window(events, init=-omega), omega)
 
 
 def test_hot_pixel_mask_drops_only_the_hot_pixels() -> None:
@@ -192,19 +202,19 @@ def test_hot_pixels_and_background_activity_do_not_move_the_estimate() -> None:
     noisy = with_extra_events(events, np.repeat(hot[:, 0], 60), np.repeat(hot[:, 1], 60), 3)
     noise = rng.integers(0, [WIDTH, HEIGHT], (len(noisy), 2))
     noisy = with_extra_events(noisy, noise[:, 0], noise[:, 1], 4)
-    assert_close_omega(cmax.estimate_window(noisy), omega)
+    assert_close_omega(estimate_window(noisy), omega)
     # Without the filter, the hot pixels do pull the estimate: the test can tell.
-    unfiltered = cmax.estimate_window(noisy, config=cmax.CMaxConfig(hot_pixel_factor=0))
-    assert np.linalg.norm(unfiltered - omega) > np.linalg.norm(cmax.estimate_window(noisy) - omega)
+    unfiltered = estimate_window(noisy, config=CMaxConfig(hot_pixel_factor=0))
+    assert np.linalg.norm(unfiltered - omega) > np.linalg.norm(estimate_window(noisy) - omega)
 
 
 def test_distorted_lens_is_undistorted_with_its_calibration() -> None:
     omega = np.radians([60.0, -200.0, 120.0])
     events = point_track_events(omega, seed=11, calib=BARREL)
-    assert_close_omega(cmax.estimate_window(events, BARREL), omega)
-    as_pinhole = cmax.estimate_window(events, cmax.default_camera(WIDTH, HEIGHT))
+    assert_close_omega(estimate_window(events, BARREL), omega)
+    as_pinhole = estimate_window(events, default_camera(WIDTH, HEIGHT))
     assert np.linalg.norm(as_pinhole - omega) > 2 * np.linalg.norm(
-        cmax.estimate_window(events, BARREL) - omega
+        estimate_window(events, BARREL) - omega
     )
 
 
@@ -213,8 +223,8 @@ def test_predict_stream_tracks_a_change_of_rotation_causally() -> None:
     a = point_track_events(first, seed=12, duration_s=0.04, points=1000)
     b = point_track_events(second, seed=13, duration_s=0.04, points=1000).shift_time(40_000)
     events = EventArray.concatenate([a, b])
-    config = replace(cmax.CMaxConfig(), rate_hz=200.0, window=WindowPolicy(fixed_events=5000))
-    t_us, omega = cmax.predict_stream(events, config=config, t_first_us=0)
+    config = replace(CMaxConfig(), rate_hz=200.0, window=WindowPolicy(fixed_events=5000))
+    t_us, omega = predict_stream(events, config=config, t_first_us=0)
     # One estimate every 5 ms from the first with 100 events, each from events up to its time.
     assert (np.diff(t_us) == 5000).all() and t_us[-1] <= events.t[-1]
     at = {int(t): w for t, w in zip(t_us, omega, strict=True)}
@@ -225,7 +235,7 @@ def test_predict_stream_tracks_a_change_of_rotation_causally() -> None:
 def test_hold_per_ms_takes_the_latest_estimate_by_each_bin_end() -> None:
     t_us = np.array([1_003_000, 1_005_000])
     omega = np.array([[1.0, 0, 0], [2.0, 0, 0]])
-    held = cmax.hold_per_ms(t_us, omega, t_start_us=1_000_000, num_steps=6)
+    held = hold_per_ms(t_us, omega, t_start_us=1_000_000, num_steps=6)
     # Bin k ends at 1 000 000 + (k + 1) 1000 us.
     np.testing.assert_array_equal(held[:, 0], [0, 0, 1, 1, 2, 2])
 
@@ -233,7 +243,7 @@ def test_hold_per_ms_takes_the_latest_estimate_by_each_bin_end() -> None:
 def test_per_ms_interpolates_between_estimates_and_holds_outside() -> None:
     t_us = np.array([2_000, 4_000])
     omega = np.array([[1.0, 0, 0], [3.0, 0, 0]])
-    rows = cmax.per_ms(t_us, omega, np.array([1_000, 2_000, 3_000, 4_000, 5_000]))
+    rows = per_ms(t_us, omega, np.array([1_000, 2_000, 3_000, 4_000, 5_000]))
     np.testing.assert_array_equal(rows[:, 0], [1, 1, 2, 3, 3])
 
 
@@ -241,8 +251,8 @@ def test_predict_windows_scores_steps_from_first_step() -> None:
     omega = np.radians([0.0, 120.0, 0.0])
     events = point_track_events(omega, seed=5, duration_s=0.06, points=600).shift_time(2_000_000)
     window = SimpleNamespace(events=events, omega=np.tile(omega, (60, 1)), t_start_us=2_000_000)
-    config = replace(cmax.SIMULATED_CONFIG, rate_hz=100.0)
-    pred = cmax.predict_windows([window], config, first_step=39)
+    config = replace(SIMULATED_CONFIG, rate_hz=100.0)
+    pred = predict_windows([window], config, first_step=39)
     assert pred.shape == (1, 60, 3)
     assert not pred[0, :39].any()
     for k in range(39, 60):
@@ -271,7 +281,7 @@ def test_simulator_pure_rotations_sign_and_accuracy(
     trajectory = sim.Trajectory.constant(omega, duration_s=0.04)
     rng = np.random.default_rng(axis)
     events = sim.simulate(panorama, trajectory, camera, sim.EventSimConfig(), rng).events
-    estimate = cmax.estimate_window(events.slice_time(5_000, 35_000), camera)
+    estimate = estimate_window(events.slice_time(5_000, 35_000), camera)
     assert np.sign(estimate[axis]) == sign, f"{name}: {np.degrees(estimate)} deg/s"
     assert_close_omega(estimate, omega)
 
@@ -286,7 +296,7 @@ def test_simulator_with_sensor_noise_and_hot_pixels(textured_scene) -> None:
     hot = np.random.default_rng(6).integers(0, [WIDTH, HEIGHT], (30, 2))
     count = len(window) // 300  # 10 % of the events from 30 hot pixels
     window = with_extra_events(window, np.repeat(hot[:, 0], count), np.repeat(hot[:, 1], count), 7)
-    assert_close_omega(cmax.estimate_window(window, camera), omega)
+    assert_close_omega(estimate_window(window, camera), omega)
 
 
 def _cli(args: list[str]) -> None:
@@ -331,3 +341,24 @@ def test_cli_fixed_count_windows_and_whole_span(tmp_path) -> None:
     pred = read_predictions(out)
     assert len(pred["t_us"]) == 1
     assert_close_omega(pred["omega"][0], first)
+
+
+@pytest.mark.parametrize(
+    ("old", "name", "new"),
+    [
+        ("spikegyro.baselines.cmax", "estimate_window", "spikegyro.cmax.search"),
+        ("spikegyro.baselines.cmax_stream", "CMaxEstimator", "spikegyro.cmax.live"),
+        ("spikegyro.baselines.cmax_iwe", "contrast", "spikegyro.cmax.iwe"),
+        ("spikegyro.baselines.cmax_windows", "WindowPolicy", "spikegyro.cmax.windows"),
+    ],
+)
+def test_old_import_paths_warn_and_forward(old, name, new):
+    import importlib
+    import sys
+
+    sys.modules.pop(old, None)
+    with pytest.warns(DeprecationWarning, match=new.replace(".", r"\.")):
+        module = importlib.import_module(old)
+    assert getattr(module, name) is getattr(importlib.import_module(new), name)
+    with pytest.raises(AttributeError, match="no attribute"):
+        module.not_there  # noqa: B018

@@ -12,10 +12,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
-from spikegyro.baselines.cmax import CMaxConfig
-from spikegyro.baselines.cmax_stream import CMaxEstimator
-from spikegyro.baselines.cmax_windows import EventBuffer, HotPixels, WindowPolicy
 from spikegyro.cli import app
+from spikegyro.cmax.config import CMaxConfig
+from spikegyro.cmax.live import CMaxEstimator
+from spikegyro.cmax.windows import EventBuffer, HotPixels, WindowPolicy
 from spikegyro.events.calib import PinholeCamera
 from spikegyro.events.core import EventArray, GyroTrace, Recording
 from spikegyro.events.imu import fit_imu_to_camera, gyro_frame, imu_rotation, rotation_text

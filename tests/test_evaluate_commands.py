@@ -242,7 +242,7 @@ def test_cmax_is_scored_under_its_name_and_nan_steps_count_as_zero(dataset, tmp_
         pred[:, 60:70] = np.nan  # e.g. no estimate yet
         return pred
 
-    monkeypatch.setattr("spikegyro.baselines.cmax.predict_windows", fake_cmax)
+    monkeypatch.setattr("spikegyro.cmax.series.predict_windows", fake_cmax)
     result = run_evaluation(dataset, None, "test", tmp_path, model="cmax", num_examples=0)
     assert calls == [3]
     assert result["model"]["name"] == "CMax" and "spikes" not in result["model"]
@@ -275,7 +275,7 @@ def test_without_a_training_split_the_mean_predictor_says_zero(dataset, tmp_path
     for path in (dataset / "test").glob("*.h5"):
         (data / "test" / path.name).write_bytes(path.read_bytes())
     monkeypatch.setattr(
-        "spikegyro.baselines.cmax.predict_windows",
+        "spikegyro.cmax.series.predict_windows",
         lambda windows, progress=None: np.zeros((len(windows), 100, 3)),
     )
     result = run_evaluation(data, None, "test", tmp_path / "out", model="cmax", num_examples=0)

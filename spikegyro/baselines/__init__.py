@@ -1,1 +1,1 @@
-"""Non-learned baselines: mean predictor and contrast maximization."""
+"""Non-learned baselines: the mean predictor. Contrast maximization is :mod:`spikegyro.cmax`."""

@@ -7,7 +7,7 @@ Each model gives one omega per step (rad/s, camera frame):
 
 - SNN-6 streams over the whole span with its state carried (as ``spikegyro predict``), the output
   of step k stamped at its end;
-- CMax (:func:`spikegyro.baselines.cmax.predict_stream`, default settings, as
+- CMax (:func:`spikegyro.cmax.series.predict_stream`, default settings, as
   ``spikegyro baseline cmax``) estimates every few ms from the events before it, each estimate
   held until the next;
 - the mean predictor answers a constant: zero, or the training mean of ``--mean-data DIR``.
@@ -43,9 +43,12 @@ import numpy as np
 from rich.console import Console
 from rich.progress import Progress
 
-from spikegyro.baselines import cmax
 from spikegyro.baselines.mean import training_mean_omega
 from spikegyro.checks import check_output_dir
+from spikegyro.cmax import series as cmax_series
+from spikegyro.cmax.config import CMaxConfig
+from spikegyro.cmax.problem import camera_from_attrs
+from spikegyro.cmax.search import estimate_window
 from spikegyro.errors import InputError
 from spikegyro.evaluate import metrics
 from spikegyro.evaluate.bins import (
@@ -162,7 +165,7 @@ def _snn_per_ms(
 def _cmax_windows(
     events: EventArray,
     camera: Any,
-    config: cmax.CMaxConfig,
+    config: CMaxConfig,
     starts: np.ndarray,
     ends: np.ndarray,
     progress: Any,
@@ -170,7 +173,7 @@ def _cmax_windows(
     """One CMax estimate from all the events of each window, for its middle (rad/s, (n, 3))."""
     out = np.zeros((len(starts), 3))
     for i, (a, b) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
-        out[i] = cmax.estimate_window(events.slice_time(a, b), camera, config, t_ref_us=(a + b) / 2)
+        out[i] = estimate_window(events.slice_time(a, b), camera, config, t_ref_us=(a + b) / 2)
         progress(i + 1, len(starts))
     return out
 
@@ -402,7 +405,7 @@ def plan_real_evaluation(inputs: RealInputs, config: RealEvalConfig) -> RealPlan
     begin = t0 + config.warmup_ms * BIN_US
     _check_overlap(raw_gyro, offset_ms, config, begin, ends[-1], gyro_source)
     # CMax undistorts each event to its ray itself: it takes the raw events and the calibration.
-    camera = calibration or cmax.camera_from_attrs(rec.attrs, *events.sensor_size)
+    camera = calibration or camera_from_attrs(rec.attrs, *events.sensor_size)
     w_starts, w_ends = _user_windows(events, config, begin, t0 + steps * BIN_US, recording)
     calib_label = str(calib_file) if calib_file else ("--intrinsics" if inputs.intrinsics else None)
     return RealPlan(
@@ -434,7 +437,7 @@ def predict_real(plan: RealPlan, console: Console) -> RealPredictions:
     """Run SNN-6 and CMax (per ms, per user window, and over short windows for the clock
     offset fit) over the plan's span; the mean predictor's answer comes first (it may fail)."""
     mean_omega, mean_source = _mean_predictor(plan.inputs.mean_data)
-    events, camera, config, t0 = plan.events, plan.camera, cmax.CMaxConfig(), plan.t0
+    events, camera, config, t0 = plan.events, plan.camera, CMaxConfig(), plan.t0
     offset_cfg = plan.config.offset
     window_us = round(offset_cfg.window_ms * 1000)
     off_ends = np.arange(
@@ -455,8 +458,10 @@ def predict_real(plan: RealPlan, console: Console) -> RealPredictions:
             str(plan.inputs.recording),
             tracker("SNN-6"),
         )
-        t_cmax, w_cmax = cmax.predict_stream(events, camera, config, progress=tracker("CMax"))
-        cmax_ms = cmax.per_ms(t_cmax, w_cmax, plan.ends)  # as `spikegyro baseline cmax` writes it
+        t_cmax, w_cmax = cmax_series.predict_stream(
+            events, camera, config, progress=tracker("CMax")
+        )
+        cmax_ms = cmax_series.per_ms(t_cmax, w_cmax, plan.ends)  # as `baseline cmax` writes it
         cmax_win = _cmax_windows(
             events, camera, config, plan.w_starts, plan.w_ends, tracker("CMax per window")
         )

@@ -125,7 +125,7 @@ def _subject(
 ) -> tuple[tuple[torch.nn.Module, dict[str, Any]] | None, InputSpec, str, dict[str, Any]]:
     """What is evaluated: (model and payload or None for CMax, input spec, name, description)."""
     if checkpoint is None:
-        info = {"method": "cmax", "source": "contrast maximization (spikegyro.baselines.cmax)"}
+        info = {"method": "cmax", "source": "contrast maximization (spikegyro.cmax)"}
         return None, InputSpec(), "CMax", info
     net, payload, name = load_model(checkpoint)
     spec = spec_of(payload)
@@ -194,9 +194,9 @@ def _predict(
     with Progress(console=console, transient=True) as bar:
         task = bar.add_task("predicting", total=len(windows))
         if model_spec is None:
-            from spikegyro.baselines import cmax
+            from spikegyro.cmax import series
 
-            return cmax.predict_windows(
+            return series.predict_windows(
                 windows, progress=lambda done, _total: bar.update(task, completed=done)
             )
         model, payload = model_spec

@@ -123,7 +123,7 @@ def predict(
     print_lines(console, inputs.notes)
     if method == "cmax":
         # The CLI layer wires the estimators together; the stream package needs no baseline.
-        from spikegyro.baselines.cmax_stream import cmax_estimator_for_file
+        from spikegyro.cmax.files import cmax_estimator_for_file
 
         estimator, note = cmax_estimator_for_file(
             events, inputs.calibration, inputs.sensor, rate_hz, window_ms

@@ -3,7 +3,7 @@
 An estimator is fed time-ordered event batches as they arrive (from a file, a camera driver's
 callback or a ROS node) and answers with the estimates that the events seen so far complete::
 
-    from spikegyro.baselines.cmax_stream import CMaxEstimator
+    from spikegyro.cmax.live import CMaxEstimator
     from spikegyro.events.calib import Calibration
 
     gyro = CMaxEstimator(Calibration(245.0, 245.0, 120.0, 90.0))   # rate_hz=100 by default
@@ -14,7 +14,7 @@ callback or a ROS node) and answers with the estimates that the events seen so f
                                                 # z forward), using only events up to t_us
     est = gyro.finish(t_end_us)                 # the estimates still due at the end
 
-Both methods implement it: :class:`spikegyro.baselines.cmax_stream.CMaxEstimator` (contrast
+Both methods implement it: :class:`spikegyro.cmax.live.CMaxEstimator` (contrast
 maximization, the one to use on real cameras) and
 :class:`spikegyro.stream.predict.SNNEstimator` (the spiking network, one estimate per 1 ms
 bin). ``spikegyro predict`` drives an estimator over a file with

@@ -3,7 +3,7 @@
 The pipeline never holds more than one chunk of events: ``iter_event_chunks`` -> a
 :class:`~spikegyro.stream.estimator.GyroEstimator` (``update`` per chunk, ``finish`` at the end)
 -> prediction writer, each estimate scored against the gyro interpolated at its time. Two
-estimators: contrast maximization (``spikegyro.baselines.cmax_stream.CMaxEstimator``: causal
+estimators: contrast maximization (``spikegyro.cmax.live.CMaxEstimator``: causal
 adaptive windows at a fixed rate, the one for real cameras) and the network
 (:class:`SNNEstimator`: reproject onto the model's camera -> split into completed 1 ms bins ->
 :class:`StreamingSNN`, or anything with ``push``/``finish`` (a :class:`Predictor`), such as the

@@ -11,8 +11,9 @@ import typer
 from rich.console import Console
 
 from spikegyro import options
-from spikegyro.baselines.cmax import CMaxConfig, WindowPolicy
-from spikegyro.baselines.cmax_stream import cmax_estimator_for_file, estimate_whole_file
+from spikegyro.cmax.config import CMaxConfig
+from spikegyro.cmax.files import cmax_estimator_for_file, estimate_whole_file
+from spikegyro.cmax.windows import WindowPolicy
 from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration
 from spikegyro.events.imu import ImuFit, fit_imu_to_camera, rotation_text

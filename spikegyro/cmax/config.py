@@ -1,0 +1,71 @@
+"""Settings of the contrast-maximization estimator (:class:`CMaxConfig`)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from spikegyro.cmax.windows import WindowPolicy
+
+Progress = Callable[[int, int], Any]
+"""``progress(done, total)``, called as work advances."""
+
+
+@dataclass(frozen=True)
+class CMaxConfig:
+    """Settings of the contrast-maximization estimator.
+
+    Streams (:class:`~spikegyro.cmax.live.CMaxEstimator`):
+        rate_hz: estimates per second of event time; 0: one per event batch.
+        window: how long each causal window is (adaptive by default; see ``WindowPolicy``).
+        track_events: events (evenly thinned) a tracking estimate uses at most (speed).
+        track_iterations: BFGS iterations of a tracking estimate (warm-started, curvature
+            included).
+        track_xtol_px: a tracking estimate stops once a step moves edges less than this, px.
+        search_every_s: the global search runs at the first estimate and then every this many
+            seconds of event time (0: only at the first), the tracked estimate competing.
+        min_motion_px: estimates moving edges by less than this over their window are flagged
+            ill-posed (too little motion to tell from none).
+        gain_drop: when an estimate's contrast gain above 1 falls below this share of its
+            recent best, or it is ill-posed, the next search comes after a fifth of
+            ``search_every_s``; below half this share, at the next estimate.
+
+    One window (:func:`estimate_window`, :func:`search`):
+        max_events: windows with more events are randomly subsampled to this many (speed).
+        min_events: windows with fewer events give no estimate (the previous one, or zero).
+        hot_pixel_factor: drop pixels firing more than this times the 95th percentile of
+            the pixel counts (see :mod:`spikegyro.cmax.windows`); 0 keeps all.
+        levels: image downscale factors of the pyramid, coarse to fine (the last is 1).
+        sigma_px: Gaussian smoothing of the IWE, pixels of each pyramid level.
+        iterations: BFGS iterations per pyramid level of the search.
+        grid_points: grid points per axis of the global search (odd, so 0 is on the grid).
+        grid_max_dps: the grid spans at most ``±grid_max_dps`` deg/s on each axis ...
+        grid_max_px: ... and at most ``±grid_max_px`` pixels of displacement at the window's ends.
+        grid_events: events (random subsample) scored by the grid.
+        starts: how many of the best grid points are refined (besides zero and the warm start).
+        search_events: events (random subsample) used to refine and compare the starts.
+        seed: seed of the event subsampling.
+    """
+
+    rate_hz: float = 100.0
+    window: WindowPolicy = field(default_factory=WindowPolicy)
+    track_events: int = 10_000
+    track_iterations: int = 2
+    track_xtol_px: float = 0.05
+    search_every_s: float = 1.0
+    min_motion_px: float = 1.0
+    gain_drop: float = 0.6
+    max_events: int = 30_000
+    min_events: int = 100
+    hot_pixel_factor: float = 5.0
+    levels: tuple[int, ...] = (4, 2, 1)
+    sigma_px: float = 1.0
+    iterations: int = 20
+    grid_points: int = 11
+    grid_max_dps: float = 1000.0
+    grid_max_px: float = 40.0
+    grid_events: int = 2000
+    starts: int = 3
+    search_events: int = 4000
+    seed: int = 0

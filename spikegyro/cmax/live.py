@@ -1,0 +1,274 @@
+"""Contrast maximization as a live gyroscope: causal, adaptive windows at a fixed output rate.
+
+:class:`CMaxEstimator` implements :class:`spikegyro.stream.estimator.GyroEstimator`: fed event
+batches as they arrive, it answers ω at ``t0 + k / rate_hz`` (or once per batch), each estimate
+from the events in ``(t - W, t]`` only. Per estimate:
+
+1. the window ``W`` (:class:`~spikegyro.cmax.windows.WindowPolicy`): enough events
+   and enough image motion under the previous estimate, within bounds;
+2. its events (hot pixels dropped, evenly thinned to ``track_events``) as rays, warped to ``t``;
+3. a few BFGS steps at full resolution from the previous estimate with the exact-gradient
+   Numba objective (:mod:`spikegyro.cmax.iwe`); the global search
+   (:func:`spikegyro.cmax.search.search`) instead at the first estimate and every
+   ``search_every_s``, the tracked estimate competing;
+4. its confidence: events used, window, the contrast over that of ω = 0, and flags when
+   ill-posed (too few events, too little motion).
+
+Memory is bounded: only the events of the longest window are kept, as rays, in a buffer that
+grows to the largest window seen and is reused.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from spikegyro.cmax.config import CMaxConfig, Progress
+from spikegyro.cmax.problem import Intrinsics, Problem, default_camera, ray_table
+from spikegyro.cmax.search import refine, search
+from spikegyro.cmax.windows import EventBuffer, HotPixels, pixel_speed, rms_radius
+from spikegyro.events.core import EventArray
+from spikegyro.events.windows import BIN_US
+from spikegyro.stream.estimator import (
+    ILL_FEW_EVENTS,
+    ILL_LITTLE_MOTION,
+    Estimates,
+    output_times,
+)
+
+
+class CMaxEstimator:
+    """Causal contrast-maximization gyroscope (see the module); a ``GyroEstimator``.
+
+    Args:
+        camera: the sensor's intrinsics (``PinholeCamera``) or ``Calibration`` (then events are
+            undistorted); default :func:`~spikegyro.cmax.problem.default_camera` of the
+            first batch's sensor.
+        config: settings (:class:`~spikegyro.cmax.config.CMaxConfig`; 100 Hz, adaptive).
+        t0_us: origin of the output clock, µs (default: the first event's whole millisecond).
+    """
+
+    def __init__(
+        self,
+        camera: Intrinsics | None = None,
+        config: CMaxConfig | None = None,
+        t0_us: int | None = None,
+    ) -> None:
+        self.camera = camera
+        self.config = config or CMaxConfig()
+        rate = f"{self.config.rate_hz:g} Hz" if self.config.rate_hz > 0 else "one per batch"
+        self.label = f"contrast maximization, causal windows, {rate} (CPU, 1 thread)"
+        self.confidence = True
+        self.reset(t0_us)
+
+    def reset(self, t0_us: int | None = None) -> None:
+        """Forget the stream; the next batch starts a new one with its clock at ``t0_us``."""
+        self.t0_us = t0_us
+        self.emitted = 0
+        self.searches = 0
+        self._omega: np.ndarray | None = None
+        self._last_search_us: int | None = None
+        self._hessian: np.ndarray | None = None
+        self._doubt = 1.0
+        self._best_gain = 0.0
+        self._last_t: int | None = None
+        self._buffer = EventBuffer()
+        self._hot: HotPixels | None = None
+        self._rays: tuple[np.ndarray, np.ndarray] | None = None
+        self._sensor: tuple[int, int] | None = None
+        self._rng = np.random.default_rng(self.config.seed)
+        self._dither = np.random.default_rng(self.config.seed + 1)
+        self._counted_us: int | None = None
+
+    def update(self, events: EventArray) -> Estimates:
+        """Add a time-ordered batch; returns the estimates it completes.
+
+        A fixed-rate estimate at ``t`` is due once an event later than ``t`` has arrived (later
+        events cannot change it); at ``rate_hz = 0`` the batch gets one estimate at its last
+        event.
+        """
+        if not len(events):
+            return Estimates.empty()
+        self._append(events)
+        t_last = int(events.t[-1])
+        if self.config.rate_hz <= 0:
+            due = np.array([t_last], np.int64)
+        else:
+            due = output_times(self.t0_us, self.config.rate_hz, self.emitted, t_last - 1)
+        return self._estimate_all(due)
+
+    def finish(self, t_end_us: int) -> Estimates:
+        """The fixed-rate estimates still due up to ``t_end_us`` (inclusive), µs."""
+        if self.t0_us is None or self.config.rate_hz <= 0:
+            return Estimates.empty()
+        return self._estimate_all(
+            output_times(self.t0_us, self.config.rate_hz, self.emitted, int(t_end_us))
+        )
+
+    def run(
+        self,
+        events: EventArray,
+        t_end_us: int | None = None,
+        progress: Progress | None = None,
+        batch_us: int = 100_000,
+    ) -> Estimates:
+        """All estimates over events in memory, fed in batches of ``batch_us`` of event time."""
+        if not len(events):
+            return Estimates.empty()
+        end = int(events.t[-1]) if t_end_us is None else int(t_end_us)
+        events = events.slice_time(int(events.t[0]), end + 1)
+        edges = np.arange(int(events.t[0]), end + batch_us + 1, batch_us)
+        cuts = np.searchsorted(events.t, edges, side="left")
+        parts = []
+        for k in range(len(cuts) - 1):
+            parts.append(self.update(events[int(cuts[k]) : int(cuts[k + 1])]))
+            if progress is not None:
+                progress(k + 1, len(cuts) - 1)
+        parts.append(self.finish(end))
+        return Estimates.concatenate(parts)
+
+    def _append(self, events: EventArray) -> None:
+        """Rays of the batch into the buffer; hot-pixel counts updated."""
+        if self._rays is None:
+            self._start(events)
+        if self._last_t is not None and events.t[0] < self._last_t:
+            raise ValueError("events must arrive in time order")
+        self._last_t = int(events.t[-1])
+        xs, ys = self._rays
+        pix = events.y.astype(np.int32) * events.width + events.x.astype(np.int32)
+        bx, by = xs.ravel()[pix], ys.ravel()[pix]
+        ok = np.isfinite(bx) & np.isfinite(by)
+        t = events.t
+        if not ok.all():
+            pix, bx, by, t = pix[ok], bx[ok], by[ok], t[ok]
+        # Dither each event within its pixel (once, so every estimate sees the same rays):
+        # undithered, the warp of ω = 0 leaves every vote whole on a pixel centre while any
+        # other ω splits votes bilinearly, so ω = 0 gets a spurious contrast peak that pulls
+        # thinned windows' estimates to zero.
+        jitter = self._dither.random((len(bx), 2)) - 0.5  # row by row: batching-independent
+        bx = bx + jitter[:, 0] / self._intrinsics[0]
+        by = by + jitter[:, 1] / self._intrinsics[1]
+        self._buffer.append(t, bx, by, pix)
+
+    def _start(self, events: EventArray) -> None:
+        """Set up for the sensor of the first batch."""
+        width, height = events.width, events.height
+        self._sensor = (width, height)
+        if self.camera is None:
+            self.camera = default_camera(width, height)
+        cam = self.camera
+        key = cam if hasattr(cam, "pixel_rays") else (cam.fx, cam.fy, cam.cx, cam.cy)
+        self._rays = ray_table(key, width, height)
+        self._intrinsics = np.array([cam.fx, cam.fy, cam.cx, cam.cy], dtype=np.float64)
+        self._radius = rms_radius(width, height, cam.cx, cam.cy)
+        self._hot = HotPixels(width * height, self.config.hot_pixel_factor)
+        if self.t0_us is None:
+            self.t0_us = int(events.t[0]) // BIN_US * BIN_US
+
+    def _estimate_all(self, due: np.ndarray) -> Estimates:
+        rows = [row for row in (self._estimate(int(t)) for t in due) if row is not None]
+        self.emitted += len(due)
+        if len(due):
+            self._buffer.forget_before(int(due[-1]) - self.config.window.horizon_us)
+        if not rows:
+            return Estimates.empty()
+        columns = list(zip(*rows, strict=True))
+        return Estimates(*(np.array(c) for c in columns))
+
+    def _count_hot(self, t_us: int) -> None:
+        """Count the events up to ``t_us`` not counted yet into the hot-pixel detector (at
+        estimate times only, so that the mask does not depend on how events were batched)."""
+        t = self._buffer.times()
+        lo = 0 if self._counted_us is None else int(np.searchsorted(t, self._counted_us, "right"))
+        hi = int(np.searchsorted(t, t_us, side="right"))
+        start = self._buffer.start
+        self._hot.add(self._buffer.pix[start + lo : start + hi], t_us)
+        self._counted_us = t_us
+
+    def _search_due(self, t_us: int) -> bool:
+        """Whether the estimate at ``t_us`` runs the global search: the first, then every
+        ``search_every_s``, sooner while tracking is in doubt."""
+        every = self.config.search_every_s * 1e6
+        since = math.inf if self._last_search_us is None else t_us - self._last_search_us
+        return self._omega is None or (every > 0 and since >= every * self._doubt)
+
+    def _window(self, t_us: int, searching: bool) -> tuple[np.ndarray, float, int] | None:
+        """Buffer indices of the (thinned) events of the window ending at ``t_us``, its span
+        (µs) and its number of events (hot pixels included: the window is sized on them);
+        None when fewer than ``min_events`` remain once hot pixels are left out."""
+        self._count_hot(t_us)
+        buf, config = self._buffer, self.config
+        t = buf.times()
+        i1 = int(np.searchsorted(t, t_us, side="right"))
+        speed = None
+        if self._omega is not None:
+            speed = pixel_speed(self._omega, float(self._intrinsics[0]), self._radius)
+        i0 = config.window.start(t, i1, t_us, speed, searching)
+        index = np.arange(buf.start + i0, buf.start + i1)
+        index = index[~self._hot.hot[buf.pix[index]]]
+        count = len(index)
+        if count < max(config.min_events, 2):
+            return None
+        if count > config.track_events:
+            # Evenly thinned: the same share of every part of the window, at no random cost.
+            index = index[np.linspace(0, len(index) - 1, config.track_events).astype(np.intp)]
+        span = float(t_us - buf.t[index[0]])
+        return index, span, i1 - i0
+
+    def _estimate(self, t_us: int) -> tuple | None:
+        """One estimate at ``t_us`` (the row of an ``Estimates``), or None without events."""
+        searching = self._search_due(t_us)
+        window = self._window(t_us, searching)
+        if window is None:
+            return None
+        index, span, count = window
+        policy = self.config.window
+        adaptive = policy.fixed_ms <= 0 and policy.fixed_events <= 0
+        if self._omega is None and adaptive and count < policy.min_events:
+            return None  # the first estimate waits for a well-posed window: tracking starts there
+        buf, config = self._buffer, self.config
+        dt = (t_us - buf.t[index]) * 1e-6
+        width, height = self._sensor
+        problem = Problem(
+            buf.bx[index], buf.by[index], dt, np.ones(len(index)), self._intrinsics, width, height
+        )
+        if searching:
+            found = search(problem, config, self._omega, grid=True, rng=self._rng)
+            self._last_search_us = t_us
+            self.searches += 1
+        else:
+            found = refine(
+                problem,
+                self._omega,
+                1,
+                config,
+                config.track_iterations,
+                self._hessian,
+                config.track_xtol_px,
+            )
+        omega = self._omega = found.omega
+        self._hessian = found.inv_hessian
+        flat = problem.contrast(np.zeros(3), 1, config.sigma_px)[0]
+        gain = found.contrast / flat if flat > 0 else math.nan
+        if math.isfinite(gain):
+            # Best recent gain above 1, forgetting over about 50 estimates.
+            self._best_gain = max(gain - 1.0, self._best_gain * 0.98)
+        share = (gain - 1.0) / self._best_gain if self._best_gain > 0 else 1.0
+        flags = 0
+        if count < config.window.min_events and config.window.fixed_events <= 0:
+            flags |= ILL_FEW_EVENTS
+        moved = pixel_speed(omega, float(self._intrinsics[0]), self._radius) * span * 1e-6
+        if moved < config.min_motion_px:
+            flags |= ILL_LITTLE_MOTION
+        # The share of the search interval to wait before the next search. An ill-posed
+        # estimate, or a gain fallen well below its recent best, may mean that tracking lost
+        # the motion or slid to a worse local maximum; a collapsed gain (the motion changed
+        # abruptly) calls for a search at once.
+        self._doubt = 1.0
+        if flags or not share >= config.gain_drop:
+            self._doubt = 0.2
+        if not share >= 0.5 * config.gain_drop:
+            self._doubt = 0.0
+        delay = float(dt.mean()) * 1e6
+        return t_us, omega, count, span, delay, gain, flags

@@ -1,0 +1,152 @@
+"""One window of events made ready for warping: rays, times to the reference time, intrinsics.
+
+Events are undistorted to rays per sensor pixel with the sensor's calibration
+(``spikegyro.events.calib.Calibration``; a plain pinhole when it has no distortion), in floating
+point: no rounding onto a pixel grid and no event lost where the undistorted image overhangs the
+sensor. Hot pixels are dropped (:mod:`spikegyro.cmax.windows`): they pull the estimate to 0.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, replace
+from typing import Any, Protocol
+
+import numpy as np
+
+from spikegyro.cmax import iwe
+from spikegyro.cmax.config import CMaxConfig
+from spikegyro.cmax.windows import hot_pixel_mask
+from spikegyro.events.calib import DEFAULT_FOCAL_PX, DEFAULT_WIDTH, PinholeCamera
+from spikegyro.events.core import EventArray
+
+
+class Intrinsics(Protocol):
+    """Pinhole intrinsics in pixels (``PinholeCamera``, ``Calibration``, ``spikegyro.sim.Camera``).
+
+    An object that also has ``pixel_rays(u, v)`` (a ``Calibration``) undistorts with it.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One window ready for warping: rays, times to t_ref, and the pinhole to project with."""
+
+    bx: np.ndarray  # (N,) ray x/z
+    by: np.ndarray  # (N,) ray y/z
+    dt: np.ndarray  # (N,) t_ref - t, seconds
+    weights: np.ndarray  # (N,) votes
+    intrinsics: np.ndarray  # fx, fy, cx, cy
+    width: int
+    height: int
+
+    def __len__(self) -> int:
+        return len(self.dt)
+
+    def subset(self, n: int, rng: np.random.Generator) -> Problem:
+        """At most ``n`` events drawn at random (the same problem when it has no more)."""
+        if len(self) <= n:
+            return self
+        keep = np.sort(rng.choice(len(self), n, replace=False))
+        return replace(
+            self, bx=self.bx[keep], by=self.by[keep], dt=self.dt[keep], weights=self.weights[keep]
+        )
+
+    @property
+    def px_per_rad_s(self) -> float:
+        """Image displacement (px) that 1 rad/s causes at the window's ends: ω's natural scale."""
+        half_span = float(np.abs(self.dt).max()) if len(self) else 0.0
+        return max(half_span, 1e-4) * float(self.intrinsics[0])
+
+    def contrast(
+        self, omega: np.ndarray, scale: int, sigma: float, gradient: bool = False
+    ) -> tuple[float, np.ndarray]:
+        """IWE variance at ``1/scale`` resolution (and its gradient in 1/(rad/s))."""
+        return iwe.contrast(
+            self.bx,
+            self.by,
+            self.dt,
+            self.weights,
+            np.asarray(omega, dtype=np.float64),
+            self.intrinsics,
+            float(scale),
+            math.ceil(self.width / scale),
+            math.ceil(self.height / scale),
+            iwe.gaussian_taps(sigma),
+            gradient,
+        )
+
+
+def default_camera(width: int, height: int) -> PinholeCamera:
+    """The simulator's pinhole (f = 200 px at 240 px wide) on a ``width`` x ``height`` sensor."""
+    f = DEFAULT_FOCAL_PX * width / DEFAULT_WIDTH
+    return PinholeCamera(width, height, f, f, width / 2.0, height / 2.0)
+
+
+def camera_from_attrs(attrs: dict[str, Any], width: int, height: int) -> PinholeCamera:
+    """Intrinsics from a sequence file's attributes (fx, fy, cx, cy), else the defaults."""
+    base = default_camera(width, height)
+    return PinholeCamera(
+        width,
+        height,
+        float(attrs.get("fx", base.fx)),
+        float(attrs.get("fy", attrs.get("fx", base.fy))),
+        float(attrs.get("cx", base.cx)),
+        float(attrs.get("cy", base.cy)),
+    )
+
+
+@functools.lru_cache(maxsize=8)
+def ray_table(camera: Any, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """(height, width) ray x/z and y/z of every sensor pixel: undistorted, NaN where undefined.
+
+    ``camera``: a ``Calibration`` or a tuple ``(fx, fy, cx, cy)``.
+    """
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    if hasattr(camera, "pixel_rays"):
+        xn, yn = camera.pixel_rays(u, v)
+    else:
+        fx, fy, cx, cy = camera
+        xn, yn = (u - cx) / fx, (v - cy) / fy
+    return np.asarray(xn), np.asarray(yn)
+
+
+def make_problem(
+    events: EventArray,
+    camera: Intrinsics,
+    config: CMaxConfig,
+    rng: np.random.Generator,
+    t_ref_us: float | None = None,
+) -> Problem:
+    """Rays of ``events`` (hot pixels dropped, subsampled to ``max_events``) around ``t_ref_us``.
+
+    ``t_ref_us`` defaults to the middle of the events' span.
+    """
+    keep = hot_pixel_mask(events.x, events.y, events.width, events.height, config.hot_pixel_factor)
+    # Keyed by value: a calibration undistorts, any other intrinsics are a plain pinhole.
+    key = camera if hasattr(camera, "pixel_rays") else (camera.fx, camera.fy, camera.cx, camera.cy)
+    xs, ys = ray_table(key, events.width, events.height)
+    ix, iy = events.x.astype(np.intp), events.y.astype(np.intp)
+    bx, by = xs[iy, ix], ys[iy, ix]
+    keep &= np.isfinite(bx) & np.isfinite(by)
+    index = np.flatnonzero(keep)
+    if len(index) > config.max_events:
+        index = np.sort(rng.choice(index, config.max_events, replace=False))
+    t = events.t.astype(np.float64)
+    t_ref = 0.5 * (t[0] + t[-1]) if t_ref_us is None else float(t_ref_us)
+    intrinsics = np.array([camera.fx, camera.fy, camera.cx, camera.cy], dtype=np.float64)
+    return Problem(
+        bx[index],
+        by[index],
+        (t_ref - t[index]) * 1e-6,
+        np.ones(len(index)),
+        intrinsics,
+        events.width,
+        events.height,
+    )

@@ -1,0 +1,212 @@
+"""Causal windows of events for contrast maximization, and the clean-up real sensors need.
+
+An estimate stamped ``t`` uses the events in ``(t - W, t]``: only the past, as a gyroscope in a
+control loop must. The window ``W`` (:class:`WindowPolicy`) adapts to the event rate and to
+the motion so that each estimate is well posed:
+
+- enough events: at least ``min_events`` (a window of 1,500 events cannot pin a slow rotation
+  down);
+- enough image motion: the previous estimate must move edges by ``target_px`` pixels over the
+  window (a slow pan needs a long window, a fast roll a short one), so the blur that the warp
+  undoes is always a few pixels, the regime where the contrast has a sharp, well-scaled peak;
+- bounded by ``min_ms`` and ``max_ms`` (the latency and the constant-ω assumption).
+
+A window can also be fixed, by time (``fixed_ms``) or by count (``fixed_events``).
+
+The estimate is a mean rate over its window, so it lags the true ω by about the distance from
+the events' mean time to ``t`` (about W/2 for a steady event rate): the latency reported with
+each estimate.
+
+Hot pixels (:class:`HotPixels`, :func:`hot_pixel_mask`) fire whatever the motion; their events
+stay in one place only under the warp of zero motion, so they pull estimates towards ω = 0 and
+are dropped.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def pixel_speed(omega: np.ndarray, fx: float, radius_px: float) -> float:
+    """Typical image speed (px/s) under rotation ω (rad/s): ``fx |ω_xy|`` from tilt and pan,
+    ``radius_px |ω_z|`` from roll (``radius_px``: the RMS distance of the sensor's pixels from
+    the principal point, where roll moves them)."""
+    w = np.asarray(omega, dtype=np.float64)
+    return math.hypot(fx * math.hypot(w[0], w[1]), radius_px * abs(w[2]))
+
+
+def rms_radius(width: int, height: int, cx: float, cy: float) -> float:
+    """RMS distance (px) of a ``width`` x ``height`` sensor's pixel centres from (cx, cy)."""
+    mean_x, mean_y = (width - 1) / 2.0, (height - 1) / 2.0
+    var = (width**2 - 1) / 12.0 + (height**2 - 1) / 12.0
+    return math.sqrt(var + (mean_x - cx) ** 2 + (mean_y - cy) ** 2)
+
+
+@dataclass(frozen=True)
+class WindowPolicy:
+    """How long a causal window is (see the module).
+
+    Attributes:
+        min_events: adaptive windows hold at least this many events (when the last ``max_ms``
+            have that many).
+        target_px: ... and are long enough that the previous estimate moves edges this far, px.
+        min_ms, max_ms: bounds of adaptive windows, ms.
+        fixed_ms: > 0: every window lasts this long instead (ms).
+        fixed_events: > 0: every window holds the last this many events instead.
+        search_ms: an adaptive window that starts a global search (no estimate to size it
+            by, or one in doubt) lasts at least this long, so that a rotation of a few deg/s
+            moves edges enough to be found.
+    """
+
+    min_events: int = 3000
+    target_px: float = 5.0
+    min_ms: float = 2.0
+    max_ms: float = 300.0
+    fixed_ms: float = 0.0
+    fixed_events: int = 0
+    search_ms: float = 30.0
+
+    @property
+    def horizon_us(self) -> int:
+        """How far back (µs) a window may reach; events older than this can be forgotten.
+        Count windows reach back as far as their events go, bounded by ``max_ms``."""
+        return round(1000 * (self.fixed_ms if self.fixed_ms > 0 else self.max_ms))
+
+    def start(
+        self,
+        t_us: np.ndarray,
+        i1: int,
+        t_ref_us: int,
+        speed_px_s: float | None,
+        searching: bool = False,
+    ) -> int:
+        """Index of the window's first event among sorted times ``t_us`` whose window ends
+        after index ``i1 - 1`` at ``t_ref_us``; ``speed_px_s``: image speed of the previous
+        estimate (None: none yet); ``searching``: the window is for a global search."""
+        if self.fixed_events > 0:
+            i0 = max(i1 - self.fixed_events, 0)
+            lo = int(np.searchsorted(t_us, t_ref_us - self.horizon_us, side="right"))
+            return max(i0, lo)
+        if self.fixed_ms > 0:
+            window_us = 1000.0 * self.fixed_ms
+        else:
+            by_count = 0.0
+            if i1 > 0:
+                first = max(i1 - self.min_events, 0)
+                by_count = float(t_ref_us - t_us[first]) + 1.0
+            by_motion = 0.0
+            if speed_px_s is not None and speed_px_s > 0:
+                by_motion = 1e6 * self.target_px / speed_px_s
+            shortest = max(self.min_ms, self.search_ms if searching else 0.0)
+            window_us = min(max(by_count, by_motion, 1000.0 * shortest), 1000.0 * self.max_ms)
+        return int(np.searchsorted(t_us, t_ref_us - window_us, side="right"))
+
+
+class EventBuffer:
+    """The recent events of a stream as rays, appended in amortized O(batch), forgotten from
+    the front: t (µs, int64), ray x/z and y/z (float64), flat pixel index (int32)."""
+
+    def __init__(self, capacity: int = 1 << 16) -> None:
+        self.t = np.zeros(capacity, np.int64)
+        self.bx = np.zeros(capacity)
+        self.by = np.zeros(capacity)
+        self.pix = np.zeros(capacity, np.int32)
+        self.start = 0
+        self.end = 0
+
+    def __len__(self) -> int:
+        return self.end - self.start
+
+    def append(self, t: np.ndarray, bx: np.ndarray, by: np.ndarray, pix: np.ndarray) -> None:
+        """Add events (already time-ordered after the buffered ones)."""
+        n = len(t)
+        if self.end + n > len(self.t):
+            live = self.end - self.start
+            capacity = max(len(self.t), 2 * (live + n))
+            for name in ("t", "bx", "by", "pix"):
+                old = getattr(self, name)
+                new = old if capacity == len(old) else np.zeros(capacity, old.dtype)
+                # Move the live part to the front (overlapping copy is safe with a temporary).
+                new[:live] = old[self.start : self.end].copy()
+                setattr(self, name, new)
+            self.start, self.end = 0, live
+        s = slice(self.end, self.end + n)
+        self.t[s], self.bx[s], self.by[s], self.pix[s] = t, bx, by, pix
+        self.end += n
+
+    def forget_before(self, t_us: int) -> None:
+        """Drop the events older than ``t_us`` (µs)."""
+        self.start += int(np.searchsorted(self.t[self.start : self.end], t_us, side="left"))
+
+    def times(self) -> np.ndarray:
+        """The buffered times (a view)."""
+        return self.t[self.start : self.end]
+
+
+class HotPixels:
+    """Streaming hot-pixel detector: per-pixel event counts decaying with ``tau_s``.
+
+    A pixel is hot when its count exceeds ``factor`` times the 95th percentile of the counts of
+    the pixels that fired, and ``min_count`` (as :func:`hot_pixel_mask` on a window); the
+    threshold is recomputed every ``every_s`` of event time. Factor <= 0 marks none.
+    """
+
+    def __init__(
+        self,
+        pixels: int,
+        factor: float = 5.0,
+        tau_s: float = 0.5,
+        min_count: float = 8.0,
+        every_s: float = 0.05,
+    ) -> None:
+        self.counts = np.zeros(pixels)
+        self.hot = np.zeros(pixels, dtype=bool)
+        self.factor, self.tau_us, self.min_count = factor, tau_s * 1e6, min_count
+        self.every_us = every_s * 1e6
+        self._decayed_at: int | None = None
+        self._checked_at: int | None = None
+
+    def add(self, pix: np.ndarray, t_last_us: int) -> None:
+        """Count a batch of events (flat pixel indices) ending at ``t_last_us``."""
+        if self.factor <= 0:
+            return
+        if self._decayed_at is None:
+            self._decayed_at = self._checked_at = t_last_us
+        elapsed = t_last_us - self._decayed_at
+        if elapsed >= 0.02 * self.tau_us:  # decaying every batch would cost O(pixels) each
+            self.counts *= math.exp(-elapsed / self.tau_us)
+            self._decayed_at = t_last_us
+        self.counts += np.bincount(pix, minlength=len(self.counts))
+        if t_last_us - self._checked_at >= self.every_us or not self.hot.any():
+            active = self.counts[self.counts > 0.5]
+            if len(active):
+                threshold = max(self.min_count, self.factor * float(np.percentile(active, 95)))
+                self.hot = self.counts > threshold
+            self._checked_at = t_last_us
+
+
+def hot_pixel_mask(
+    x: np.ndarray,
+    y: np.ndarray,
+    width: int,
+    height: int,
+    factor: float = 5.0,
+    min_count: int = 8,
+) -> np.ndarray:
+    """Which events of one window to keep: False for events of hot pixels.
+
+    A pixel is hot when it fires more than ``factor`` times the 95th percentile of the counts of
+    the pixels that fired, and more than ``min_count`` times. Pixels that an edge sweeps fire a
+    few times each, in proportion to the edge's contrast; a hot pixel fires regardless of the
+    motion. Factor <= 0 keeps every event.
+    """
+    if factor <= 0 or len(x) == 0:
+        return np.ones(len(x), dtype=bool)
+    index = np.asarray(y, dtype=np.int64) * width + np.asarray(x, dtype=np.int64)
+    counts = np.bincount(index, minlength=width * height)
+    active = counts[counts > 0]
+    threshold = max(float(min_count), factor * float(np.percentile(active, 95)))
+    return counts[index] <= threshold
