@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from spikegyro.errors import InputError
 from spikegyro.evaluate.metrics import mean_euclidean_error, median_relative_error
@@ -19,29 +18,42 @@ from spikegyro.models.registry import (
     resolve_checkpoint,
 )
 from spikegyro.sim.dataset import SimConfig, generate_dataset
-from spikegyro.train.data import encode_window, fixed_windows
+from spikegyro.train.data import fixed_windows
+from spikegyro.train.infer import predict_windows
 
 
-def test_shipped_snn6_beats_the_mean_predictor_on_unseen_scenes(tmp_path) -> None:
-    model, payload = load_checkpoint(PRETRAINED_SNN6)
-    assert payload["model"] == "snn6" and payload["input"]["sensor"] == [240, 180]
-    # Test-split scenes (held-out photograph, new procedural panoramas) with a fresh seed.
+@pytest.fixture(scope="module")
+def unseen_windows(tmp_path_factory) -> list:
+    """Eight 100 ms test windows: the held-out photograph and new procedural panoramas, with a
+    seed no shipped model was trained on."""
+    root = tmp_path_factory.mktemp("unseen")
     config = SimConfig(duration_ms=200, val_fraction=0.0, test_fraction=0.8)
-    generate_dataset(tmp_path, 5, seed=97, config=config)
-    windows = fixed_windows(tmp_path, "test")
+    generate_dataset(root, 5, seed=97, config=config)
+    windows = fixed_windows(root, "test")
     assert len(windows) == 8
-    with torch.no_grad():
-        x = torch.stack([encode_window(w, payload["input"]) for w in windows])
-        pred = model(x).numpy().astype(np.float64).transpose(0, 2, 1)  # (n, T, 3)
-    gt = np.stack([w.omega for w in windows])
+    return windows
+
+
+@pytest.mark.parametrize(
+    ("name", "model", "representation"), [("snn6", "snn6", "spikes"), ("ann6", "ann6", "voxel")]
+)
+def test_shipped_model_beats_the_mean_predictor_on_unseen_scenes(
+    unseen_windows, name, model, representation
+) -> None:
+    net, payload = load_checkpoint(name)
+    spec = payload["input"]
+    assert (payload["model"], spec["representation"]) == (model, representation)
+    assert spec["sensor"] == [240, 180]
+    pred = predict_windows(net, payload, unseen_windows).astype(np.float64)  # (n, T, 3)
+    gt = np.stack([w.omega for w in unseen_windows])
     mean = np.zeros_like(gt)  # the training data's ω is zero-mean per axis
-    snn_rel = median_relative_error(pred, gt)
+    rel = median_relative_error(pred, gt)
     # Each window's prediction must follow its own motion: matched to another window's, the
     # same outputs are far worse.
     shuffled = pred[np.roll(np.arange(len(pred)), 1)]
-    assert snn_rel < 0.6 * median_relative_error(shuffled, gt)
-    # Relay measurements: 0.22 on 320 test windows; a small split scatters around that.
-    assert snn_rel < 0.45, snn_rel
+    assert rel < 0.6 * median_relative_error(shuffled, gt)
+    # Measured on 320 seed-11 test windows: 0.22 for both; a small split scatters around that.
+    assert rel < 0.45, rel
     assert mean_euclidean_error(pred, gt) < 0.5 * mean_euclidean_error(mean, gt)
 
 
