@@ -274,9 +274,65 @@ def test_event_packet_libcaer_and_mono(tmp_path, ros2):
 def test_event_packet_unknown_encoding(tmp_path, monkeypatch, capsys):
     pytest.importorskip("rosbags")
     path = tmp_path / "rec.bag"
-    write_packet_bag(path, [("libcaer_cmp", 10**18, b"\0" * 16)], ros2=False)
+    write_packet_bag(path, [("evt2", 10**18, b"\0" * 16)], ros2=False)
     err = cli_error(monkeypatch, capsys, "info", str(path))
-    assert "libcaer_cmp" in err and "evt3, libcaer, mono" in err
+    assert "evt2" in err and "evt3, libcaer, libcaer_cmp, mono" in err
+
+
+@needs_real
+@pytest.mark.parametrize("name", ["", "test_events_2_0.mcap"])
+def test_libcaer_cmp_bag_real(name):
+    pytest.importorskip("rosbags")
+    # The folder's metadata.yaml names no storage plugin: its .mcap is opened by extension.
+    path = REAL / "ros2_davis346_libcaer_cmp" / name
+    assert detect_format(path) == "rosbag"
+    ev = read_quietly(path).events
+    assert ev.sensor_size == (346, 260)
+    # event_camera_py's tests/test_2.py: 360,223 OFF + 211,043 ON events, the first sensor time
+    # 1744227144732712 µs, and the times, counted from it, sum to 335,555,680,277 µs.
+    assert (int((ev.p == 0).sum()), int((ev.p == 1).sum())) == (360_223, 211_043)
+    assert ev.t[0] == 1_744_227_144_732_712
+    assert int((ev.t - ev.t[0]).sum()) == 335_555_680_277
+
+
+def cmp_words(events, start=None) -> bytes:
+    """libcaer_cmp words for (x, y, t_us, p) events of one packet, from the layout: TIME_HIGH,
+    TIME_LOW, ADDR_X when they change, then ADDR_Y; runs of ``start`` (x, base y, polarity)
+    as VECT_BASE_Y and VECT_8 words instead."""
+    words, state = [], {}
+    for x, y, t, p in events:
+        for code, value in ((0, t >> 12), (1, t & 0xFFF), (2, x)):
+            if state.get(code) != value:
+                words.append((code << 12) | value)
+                state[code] = value
+        words.append((3 << 12) | (p << 11) | y)
+    if start is not None:  # two VECT_8 words: y = base + 0..7, then base + 8 + 0..7
+        x, base, p, bits = start
+        words += [(2 << 12) | x, (4 << 12) | (p << 11) | base]
+        words += [(5 << 12) | (b & 0xFF) for b in bits]
+    return np.array(words, dtype="<u2").tobytes()
+
+
+def test_libcaer_cmp_layout(tmp_path):
+    pytest.importorskip("rosbags")
+    base_ns = 1_700_000_000_123_456_789  # not a whole µs: the decoder floors it
+    base_us = base_ns // 1000
+    one = [(3, 4, 5, 1), (3, 9, 5000, 0), (345, 259, 70_000, 1), (400, 10, 70_001, 1)]
+    packets = [
+        ("libcaer_cmp", base_ns, cmp_words(one, start=(7, 100, 1, (0b101, 0b10000000)))),
+        # continues the vector of packet 1 (base 116 now) at its x, with times from 0 again
+        ("libcaer_cmp", base_ns + 10**8, np.array([(5 << 12) | 0b11], "<u2").tobytes()),
+    ]
+    path = tmp_path / "bag2"
+    write_packet_bag(path, packets, ros2=True)
+    ev = read_quietly(path).events
+    t_last = base_us + 70_001
+    want = [
+        (3, 4, base_us + 5, 1), (3, 9, base_us + 5000, 0), (345, 259, base_us + 70_000, 1),
+        (7, 100, t_last, 1), (7, 102, t_last, 1), (7, 115, t_last, 1),  # x 400: off the sensor
+        (7, 116, base_us + 10**5, 1), (7, 117, base_us + 10**5, 1),
+    ]  # fmt: skip
+    assert_events(ev, *(np.array(c) for c in zip(*want, strict=True)))
 
 
 # --- every real file through `spikegyro info`, without size flags --------------------------------
@@ -287,6 +343,7 @@ INFO = {
     "gen41_evt3.raw": "219,596",
     "ros1_evt3_events_1.bag": "343,474",
     "ros2_evt3_events_1": "343,474",
+    "ros2_davis346_libcaer_cmp": "571,266",
     "dvxplorer_static_imu.aedat4": "111,954",
 }
 
@@ -294,7 +351,7 @@ INFO = {
 @needs_real
 @pytest.mark.parametrize("name", sorted(INFO))
 def test_info_reads_every_real_file(monkeypatch, capsys, name):
-    if name.endswith((".bag", "_1")):
+    if name.startswith("ros"):
         pytest.importorskip("rosbags")
     if name.endswith(".aedat4"):
         pytest.importorskip("aedat")

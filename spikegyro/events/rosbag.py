@@ -10,11 +10,16 @@ definitions. Gyro samples (``angular_velocity``, rad/s, in the IMU message's fra
 ``ts`` (EventArray) or the packet's time base plus the decoded time (EventPacket), each IMU
 message's header stamp, in µs. ROS 1 event arrays are decoded straight from their bytes with
 NumPy (13 bytes per event); other messages go through the library's deserializer. Messages are
-read in the bag's order; ones out of time order are put back in order.
+read in the bag's order; ones out of time order are put back in order. ROS 2 bags are read
+with these message types, not the definitions they embed (drivers write IDL that ``rosbags``
+cannot parse); a bag folder whose ``metadata.yaml`` names no storage plugin is read from its
+``.mcap`` or ``.db3`` files, by extension.
 """
 
 from __future__ import annotations
 
+import heapq
+import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -70,13 +75,70 @@ def typestore(ros2: bool = False) -> Any:
 
 
 def _open(path: Path) -> Any:
-    highlevel = optional_import("rosbags.highlevel", EXTRA, path)
-    reader = highlevel.AnyReader([path], default_typestore=typestore(ros2=_is_ros2(path)))
+    if _is_ros2(path):
+        reader = _Ros2Reader(_ros2_paths(path))
+    else:
+        highlevel = optional_import("rosbags.highlevel", EXTRA, path)
+        reader = highlevel.AnyReader([path], default_typestore=typestore())
     try:
         reader.open()
     except Exception as exc:  # rosbags raises its own ReaderError types on bad or unindexed bags
         raise InputError(f"{path}: not a readable ROS bag ({exc}).") from None
     return reader
+
+
+def _ros2_paths(path: Path) -> list[Path]:
+    """The bag folder itself, or its storage files where its ``metadata.yaml`` names no storage
+    plugin (as some recorders write it): then each file is opened by its extension."""
+    meta = path / "metadata.yaml"
+    if not path.is_dir() or not meta.is_file():
+        return [path]
+    text = meta.read_text(errors="replace")
+    if not re.search(r"^\s*storage_identifier:\s*(\"\"|'')?\s*$", text, re.MULTILINE):
+        return [path]
+    files = [f for f in sorted(path.iterdir()) if f.suffix.lower() in (".mcap", ".db3")]
+    if not files:
+        raise InputError(f"{path}: a ROS 2 bag folder without .mcap or .db3 files.")
+    return files
+
+
+class _Ros2Reader:
+    """ROS 2 storage read with spikegyro's own message types (``rosbags``' reader per folder or
+    storage file, messages merged in time order). The definitions that bags embed are not
+    parsed: drivers write IDL that ``rosbags`` cannot parse, and only the types of
+    :data:`DVS_MSGS` and ``sensor_msgs/Imu`` are read."""
+
+    def __init__(self, paths: list[Path]) -> None:
+        rosbag2 = optional_import("rosbags.rosbag2", EXTRA, paths[0])
+        self.readers = [rosbag2.Reader(p) for p in paths]
+        self.store = typestore(ros2=True)
+        self.connections: list[Any] = []
+
+    def open(self) -> None:
+        try:
+            for reader in self.readers:
+                reader.open()
+        except Exception:
+            self.close()
+            raise
+        self.connections = [c for r in self.readers for c in r.connections]
+
+    def messages(self, connections: list[Any]) -> Iterator[tuple[Any, int, bytes]]:
+        wanted = {id(c) for c in connections}
+        streams = [
+            r.messages(connections=[c for c in r.connections if id(c) in wanted])
+            for r in self.readers
+            if any(id(c) in wanted for c in r.connections)
+        ]
+        return heapq.merge(*streams, key=lambda message: message[1])
+
+    def deserialize(self, raw: bytes, msgtype: str) -> Any:
+        return self.store.deserialize_cdr(raw, msgtype)
+
+    def close(self) -> None:
+        for reader in self.readers:
+            if reader.is_open:
+                reader.close()
 
 
 def _topics(reader: Any) -> tuple[list[Any], list[Any]]:
