@@ -114,8 +114,9 @@ def test_too_few_events_are_flagged_and_the_first_estimate_waits() -> None:
     config = CMaxConfig(window=WindowPolicy(min_events=1500, max_ms=50.0))
     est = CMaxEstimator(CAMERA, config, t0_us=0).run(events)
     # 50 ms hold ~1,000 events < 1,500: flagged. Adaptive windows bootstrap only once they
-    # have min_events; with a 50 ms cap they never do, so there is no estimate at all.
-    assert len(est) == 0
+    # have min_events; with a 50 ms cap they never do, so the stream's only estimate is the
+    # one that its end gets from its last window, flagged.
+    assert len(est) == 1 and est.t_us[0] == events.t[-1] and est.ill_posed[0] & 1
     est = CMaxEstimator(CAMERA, CMaxConfig(window=WindowPolicy(min_events=1500, fixed_ms=50.0)),
                         t0_us=0).run(events)  # fmt: skip
     assert len(est) and (est.ill_posed & 1).all()
@@ -216,3 +217,12 @@ def test_too_few_events_for_any_estimate_warn_and_leave_a_header(tmp_path) -> No
     assert res.exit_code == 0, res.output
     assert "warning: no estimate: 2 events" in res.output
     assert len(read_predictions(out)["t_us"]) == 0
+
+
+@pytest.mark.parametrize("span_ms", [3.0, 8.0])
+def test_a_stream_shorter_than_the_output_period_gets_one_estimate(span_ms) -> None:
+    omega = np.radians([0.0, 0.0, 400.0])
+    events = point_track_events(omega, seed=11, duration_s=span_ms / 1000, points=3000)
+    est = CMaxEstimator(CAMERA).run(events)  # 100 Hz: the first output time is after the end
+    assert len(est) == 1 and est.t_us[0] == events.t[-1]
+    assert_close_omega(est.omega[0], omega)

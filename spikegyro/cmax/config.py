@@ -13,6 +13,30 @@ Progress = Callable[[int, int], Any]
 
 
 @dataclass(frozen=True)
+class OneRotationTest:
+    """Settings of the test whether one rotation explains a window's events
+    (:mod:`spikegyro.cmax.confidence`).
+
+    Attributes:
+        min_agreement: the halves agree when each one's ω achieves at least this share of the
+            other's own sharpening (see the module).
+        min_gain: a half (or the window) whose best contrast is under this times that of
+            ω = 0 shows no structure to judge by.
+        min_half_gain: every half with enough events must be sharpened by ω at least this much.
+        min_events: halves with fewer events are not judged.
+        iterations: BFGS iterations refining each half's ω from the window's.
+        max_events: events (random subsample) each half keeps at most (speed).
+    """
+
+    min_agreement: float = 0.8
+    min_gain: float = 1.05
+    min_half_gain: float = 1.03
+    min_events: int = 500
+    iterations: int = 8
+    max_events: int = 5000
+
+
+@dataclass(frozen=True)
 class CMaxConfig:
     """Settings of the contrast-maximization estimator.
 
@@ -46,6 +70,8 @@ class CMaxConfig:
         starts: how many of the best grid points are refined (besides zero and the warm start).
         search_events: events (random subsample) used to refine and compare the starts.
         seed: seed of the event subsampling.
+        one_rotation: the test of ``ill_posed`` bit 4 (:mod:`spikegyro.cmax.confidence`; None:
+            not run).
     """
 
     rate_hz: float = 100.0
@@ -69,3 +95,4 @@ class CMaxConfig:
     starts: int = 3
     search_events: int = 4000
     seed: int = 0
+    one_rotation: OneRotationTest | None = field(default_factory=OneRotationTest)

@@ -24,6 +24,7 @@ import math
 
 import numpy as np
 
+from spikegyro.cmax.confidence import not_one_rotation
 from spikegyro.cmax.config import CMaxConfig, Progress
 from spikegyro.cmax.problem import Intrinsics, Problem, default_camera, ray_table
 from spikegyro.cmax.search import refine, search
@@ -33,6 +34,7 @@ from spikegyro.events.windows import BIN_US
 from spikegyro.stream.estimator import (
     ILL_FEW_EVENTS,
     ILL_LITTLE_MOTION,
+    ILL_NOT_ONE_ROTATION,
     Estimates,
     output_times,
 )
@@ -66,6 +68,8 @@ class CMaxEstimator:
         """Forget the stream; the next batch starts a new one with its clock at ``t0_us``."""
         self.t0_us = t0_us
         self.emitted = 0
+        self.produced = 0
+        self._seen = self._in_view = 0
         self.searches = 0
         self._omega: np.ndarray | None = None
         self._last_search_us: int | None = None
@@ -102,9 +106,13 @@ class CMaxEstimator:
         """The fixed-rate estimates still due up to ``t_end_us`` (inclusive), µs."""
         if self.t0_us is None or self.config.rate_hz <= 0:
             return Estimates.empty()
-        return self._estimate_all(
-            output_times(self.t0_us, self.config.rate_hz, self.emitted, int(t_end_us))
-        )
+        due = output_times(self.t0_us, self.config.rate_hz, self.emitted, int(t_end_us))
+        found = self._estimate_all(due)
+        if self.produced or self._last_t is None:
+            return found
+        # A stream shorter than the output period (or whose windows never filled) still gets
+        # one estimate from all its events, stamped at the last of them.
+        return self._estimate_all(np.array([self._last_t], np.int64), count=False, wait=False)
 
     def run(
         self,
@@ -128,6 +136,20 @@ class CMaxEstimator:
         parts.append(self.finish(end))
         return Estimates.concatenate(parts)
 
+    def why_none(self) -> str:
+        """Why the stream so far gave no estimate (empty when it gave one)."""
+        if self.produced:
+            return ""
+        need = max(self.config.min_events, 2)
+        hot = int(self._hot.hot.sum()) if self._hot is not None else 0
+        if self._in_view == self._seen and not hot:
+            return f"{self._seen:,} events are fewer than the {need:,} that an estimate needs"
+        return (
+            f"of {self._seen:,} events, {self._in_view:,} fall inside the calibrated field of "
+            f"view and fewer than the {need:,} that an estimate needs remain once the events "
+            f"of hot pixels ({hot:,} found) are dropped"
+        )
+
     def _append(self, events: EventArray) -> None:
         """Rays of the batch into the buffer; hot-pixel counts updated."""
         if self._rays is None:
@@ -139,6 +161,8 @@ class CMaxEstimator:
         pix = events.y.astype(np.int32) * events.width + events.x.astype(np.int32)
         bx, by = xs.ravel()[pix], ys.ravel()[pix]
         ok = np.isfinite(bx) & np.isfinite(by)
+        self._seen += len(ok)
+        self._in_view += int(ok.sum())
         t = events.t
         if not ok.all():
             pix, bx, by, t = pix[ok], bx[ok], by[ok], t[ok]
@@ -166,9 +190,12 @@ class CMaxEstimator:
         if self.t0_us is None:
             self.t0_us = int(events.t[0]) // BIN_US * BIN_US
 
-    def _estimate_all(self, due: np.ndarray) -> Estimates:
-        rows = [row for row in (self._estimate(int(t)) for t in due) if row is not None]
-        self.emitted += len(due)
+    def _estimate_all(self, due: np.ndarray, count: bool = True, wait: bool = True) -> Estimates:
+        """The estimates at times ``due`` (µs); ``count``: they are on the output clock;
+        ``wait``: the first estimate waits for a well-posed window."""
+        rows = [row for row in (self._estimate(int(t), wait) for t in due) if row is not None]
+        self.emitted += len(due) if count else 0
+        self.produced += len(rows)
         if len(due):
             self._buffer.forget_before(int(due[-1]) - self.config.window.horizon_us)
         if not rows:
@@ -216,8 +243,38 @@ class CMaxEstimator:
         span = float(t_us - buf.t[index[0]])
         return index, span, i1 - i0
 
-    def _estimate(self, t_us: int) -> tuple | None:
-        """One estimate at ``t_us`` (the row of an ``Estimates``), or None without events."""
+    def _flags(self, problem: Problem, omega: np.ndarray, count: int, span_us: float) -> int:
+        """The ``ill_posed`` bits of estimate ω of ``problem``: too few events (``count``,
+        hot pixels included), too little motion over ``span_us``, not one rotation."""
+        config, flags = self.config, 0
+        if count < config.window.min_events and config.window.fixed_events <= 0:
+            flags |= ILL_FEW_EVENTS
+        moved = pixel_speed(omega, float(self._intrinsics[0]), self._radius) * span_us * 1e-6
+        if moved < config.min_motion_px:
+            flags |= ILL_LITTLE_MOTION
+        if not_one_rotation(problem, omega, moved, config, self._rng):
+            flags |= ILL_NOT_ONE_ROTATION
+        return flags
+
+    def _update_doubt(self, gain: float, flags: int) -> None:
+        """The share of the search interval to wait before the next search. An ill-posed
+        estimate, or a gain fallen well below its recent best, may mean that tracking lost the
+        motion or slid to a worse local maximum; a collapsed gain (the motion changed
+        abruptly) calls for a search at once."""
+        if math.isfinite(gain):
+            # Best recent gain above 1, forgetting over about 50 estimates.
+            self._best_gain = max(gain - 1.0, self._best_gain * 0.98)
+        share = (gain - 1.0) / self._best_gain if self._best_gain > 0 else 1.0
+        drop = self.config.gain_drop
+        self._doubt = 1.0
+        if flags or not share >= drop:
+            self._doubt = 0.2
+        if not share >= 0.5 * drop:
+            self._doubt = 0.0
+
+    def _estimate(self, t_us: int, wait: bool = True) -> tuple | None:
+        """One estimate at ``t_us`` (the row of an ``Estimates``), or None without events;
+        ``wait``: none while the first window is not well posed."""
         searching = self._search_due(t_us)
         window = self._window(t_us, searching)
         if window is None:
@@ -225,7 +282,7 @@ class CMaxEstimator:
         index, span, count = window
         policy = self.config.window
         adaptive = policy.fixed_ms <= 0 and policy.fixed_events <= 0
-        if self._omega is None and adaptive and count < policy.min_events:
+        if wait and self._omega is None and adaptive and count < policy.min_events:
             return None  # the first estimate waits for a well-posed window: tracking starts there
         buf, config = self._buffer, self.config
         dt = (t_us - buf.t[index]) * 1e-6
@@ -251,24 +308,7 @@ class CMaxEstimator:
         self._hessian = found.inv_hessian
         flat = problem.contrast(np.zeros(3), 1, config.sigma_px)[0]
         gain = found.contrast / flat if flat > 0 else math.nan
-        if math.isfinite(gain):
-            # Best recent gain above 1, forgetting over about 50 estimates.
-            self._best_gain = max(gain - 1.0, self._best_gain * 0.98)
-        share = (gain - 1.0) / self._best_gain if self._best_gain > 0 else 1.0
-        flags = 0
-        if count < config.window.min_events and config.window.fixed_events <= 0:
-            flags |= ILL_FEW_EVENTS
-        moved = pixel_speed(omega, float(self._intrinsics[0]), self._radius) * span * 1e-6
-        if moved < config.min_motion_px:
-            flags |= ILL_LITTLE_MOTION
-        # The share of the search interval to wait before the next search. An ill-posed
-        # estimate, or a gain fallen well below its recent best, may mean that tracking lost
-        # the motion or slid to a worse local maximum; a collapsed gain (the motion changed
-        # abruptly) calls for a search at once.
-        self._doubt = 1.0
-        if flags or not share >= config.gain_drop:
-            self._doubt = 0.2
-        if not share >= 0.5 * config.gain_drop:
-            self._doubt = 0.0
+        flags = self._flags(problem, omega, count, span)
+        self._update_doubt(gain, flags)
         delay = float(dt.mean()) * 1e6
         return t_us, omega, count, span, delay, gain, flags

@@ -38,6 +38,9 @@ ILL_FEW_EVENTS = 1
 ILL_LITTLE_MOTION = 2
 """``Estimates.ill_posed`` bit: the estimate moves edges by less than a pixel over its window,
 so a rotation that small cannot be told from none."""
+ILL_NOT_ONE_ROTATION = 4
+"""``Estimates.ill_posed`` bit: one rotation does not explain the window's events (parts of the
+image disagree on it, or nothing in them is sharpened by it): the scene itself may move."""
 
 
 @dataclass(frozen=True)
@@ -54,7 +57,8 @@ class Estimates:
             (NaN where not applicable).
         contrast_gain: (K,) float64 contrast of the estimate over that of ω = 0 (1: no structure
             found; NaN where not applicable).
-        ill_posed: (K,) uint8 bits :data:`ILL_FEW_EVENTS`, :data:`ILL_LITTLE_MOTION`.
+        ill_posed: (K,) uint8 bits :data:`ILL_FEW_EVENTS`, :data:`ILL_LITTLE_MOTION`,
+            :data:`ILL_NOT_ONE_ROTATION`.
     """
 
     t_us: np.ndarray

@@ -39,6 +39,7 @@ from spikegyro.events.windows import BIN_US
 from spikegyro.stream.estimator import (
     ILL_FEW_EVENTS,
     ILL_LITTLE_MOTION,
+    ILL_NOT_ONE_ROTATION,
     Estimates,
     GyroEstimator,
 )
@@ -327,7 +328,7 @@ class _Decimated:
             self.size = len(self.rows[0])
 
     def table(self) -> np.ndarray:
-        return np.concatenate(self.rows) if self.rows else np.zeros((0, 7))
+        return np.concatenate(self.rows) if self.rows else np.zeros((0, 8))
 
 
 def read_time_span(path: str | os.PathLike) -> tuple[int, int] | None:
@@ -422,8 +423,10 @@ class StreamResult:
             :data:`WARMUP_STEPS` ms on.
         latency_ms: median of how far each estimate's events lie, on average, before its time
             (NaN where the estimator does not say).
-        ill_posed: estimates flagged with too few events, and with too little motion.
+        ill_posed: estimates flagged with too few events, with too little motion, and as not
+            explained by one rotation.
         plot: the plot against the gyro, if drawn.
+        why_none: where there is no estimate, the estimator's reason (empty: not known).
     """
 
     steps: int = 0
@@ -435,8 +438,9 @@ class StreamResult:
     engine: str = ""
     stats: dict[str, float] = field(default_factory=dict)
     latency_ms: float = float("nan")
-    ill_posed: tuple[int, int] = (0, 0)
+    ill_posed: tuple[int, int, int] = (0, 0, 0)
     plot: Path | None = None
+    why_none: str = ""
 
     @property
     def realtime_factor(self) -> float:
@@ -459,7 +463,7 @@ class _Summary:
 
     def __init__(self) -> None:
         self.delay_hist = np.zeros(10_001, dtype=np.int64)
-        self.few = self.little = 0
+        self.few = self.little = self.not_one = 0
 
     def add(self, est: Estimates) -> None:
         delay = est.delay_us[np.isfinite(est.delay_us)]
@@ -467,6 +471,7 @@ class _Summary:
         self.delay_hist += np.bincount(bins, minlength=len(self.delay_hist))
         self.few += int((est.ill_posed & ILL_FEW_EVENTS).astype(bool).sum())
         self.little += int((est.ill_posed & ILL_LITTLE_MOTION).astype(bool).sum())
+        self.not_one += int((est.ill_posed & ILL_NOT_ONE_ROTATION).astype(bool).sum())
 
     def latency_ms(self) -> float:
         cum = np.cumsum(self.delay_hist)
@@ -540,6 +545,7 @@ def predict_stream(
         end = t_end if t_end is not None else last_t + 1
         run.emit(w, estimator.finish(end))
     result = run.finish(end, estimator.label)
+    result.why_none = getattr(estimator, "why_none", str)()
     if gyro is not None and plot:
         result.plot = plot_against_gyro(
             Path(out_path).with_suffix(".png"), run.series.table(), t0, _short_label(estimator)
@@ -567,7 +573,7 @@ class _StreamRun:
             ref[outside] = np.nan
             scored = est.t_us > self.t0_us + WARMUP_STEPS * BIN_US
             self.stats.add(est.omega[scored], ref[scored])
-            self.series.add(np.column_stack([est.t_us, est.omega, ref]))
+            self.series.add(np.column_stack([est.t_us, est.omega, ref, est.ill_posed]))
         self.summary.add(est)
         self.result.estimates += len(est)
         writer.append(est.t_us, est.omega, ref, est if writer.with_confidence else None)
@@ -581,7 +587,7 @@ class _StreamRun:
         result.engine = engine
         result.stats = self.stats.summary()
         result.latency_ms = self.summary.latency_ms()
-        result.ill_posed = (self.summary.few, self.summary.little)
+        result.ill_posed = (self.summary.few, self.summary.little, self.summary.not_one)
         return result
 
 
@@ -591,7 +597,9 @@ def _short_label(estimator: Any) -> str:
 
 
 def plot_against_gyro(path: Path, table: np.ndarray, t0_us: int, label: str = "SNN") -> Path:
-    """Predicted and reference ω per axis (deg/s) over time; ``table`` rows: t_us, ω(3), ref(3)."""
+    """Predicted and reference ω per axis (deg/s) over time; ``table`` rows: t_us, ω(3), ref(3)
+    and optionally the ``ill_posed`` bits, whose estimates not explained by one rotation (bit 4)
+    are marked."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -606,6 +614,13 @@ def plot_against_gyro(path: Path, table: np.ndarray, t0_us: int, label: str = "S
     ):
         ax.plot(t, np.degrees(table[:, 4 + k]), color="0.3", lw=1.0, label="gyro")
         ax.plot(t, np.degrees(table[:, 1 + k]), color="C3", lw=0.8, label=label)
+        if table.shape[1] > 7:
+            odd = (table[:, 7].astype(np.int64) & ILL_NOT_ONE_ROTATION) > 0
+            if odd.any():
+                ax.plot(
+                    t[odd], np.degrees(table[odd, 1 + k]), "x", color="C1", ms=4,
+                    label="not one rotation",
+                )  # fmt: skip
         ax.set_ylabel(f"{name}\n[deg/s]")
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right", ncol=2)
@@ -648,7 +663,9 @@ def summary_lines(result: StreamResult, out: str | os.PathLike, warm_up: bool = 
         "CPU-second)",
         f"engine: {result.engine}",
     ]
-    if result.estimates == 0:
+    if result.estimates == 0 and result.why_none:
+        lines.append(f"warning: no estimate: {result.why_none}; the output holds only its header.")
+    elif result.estimates == 0:
         lines.append(
             f"warning: no estimate: {result.events:,} events in {seconds:.3f} s are too few for "
             "one (a window needs a few thousand events); the output holds only its header."
@@ -663,12 +680,18 @@ def summary_lines(result: StreamResult, out: str | os.PathLike, warm_up: bool = 
             f"latency: each estimate is the mean rate over its window, whose events lie "
             f"{result.latency_ms:.1f} ms (median) before the estimate's time"
         )
-    few, little = result.ill_posed
+    few, little, not_one = result.ill_posed
     if few or little:
         lines.append(
             f"warning: {few:,} of {result.estimates:,} estimates had fewer events than asked "
             f"for and {little:,} moved edges by less than a pixel (too little motion to tell "
             "from none): see the ill_posed column; their ω is unreliable."
+        )
+    if not_one:
+        lines.append(
+            f"warning: one rotation does not explain the events of {not_one:,} of "
+            f"{result.estimates:,} estimates (ill_posed bit 4: parts of the image disagree, or "
+            "the motion sharpens nothing): the scene itself may move; their ω is unreliable."
         )
     if result.stats:
         s = result.stats

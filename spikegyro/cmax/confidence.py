@@ -1,0 +1,166 @@
+"""Does one rotation explain a window's events? The test behind ``ill_posed`` bit 4.
+
+Contrast maximization always returns the ω that sharpens the events best, also where the scene
+itself moves (a static camera watching people walk) or where two parts of the image move
+differently. A camera's own rotation moves every part of the image the same way, so the events
+of any part are sharpened by the same ω. The test splits the window's events into halves, by
+ray x (left, right) and by ray y (top, bottom), refines ω on each half from the window's
+estimate, and asks how much of each half's own sharpening the other half's ω achieves:
+
+    agreement(A, B) = (C_A(ω_B) - C_A(0)) / (C_A(ω_A) - C_A(0))
+
+with ``C_A`` the contrast of half A's events (1: B's rotation sharpens A as well as A's own
+does; 0: no better than no rotation at all; negative: worse). Under one rotation both halves
+find the same ω up to noise, and the agreement stays near 1; under two rotations at least one
+half's events are sharpened poorly by the other's. Halves whose own sharpening is too weak to
+judge (gain over ω = 0 below ``min_gain``) are not compared. The test also says no where ω
+sharpens the whole window weakly (gain under ``min_gain``) or leaves a half with enough events
+almost unsharpened (gain under ``min_half_gain``): a camera's rotation sharpens every textured
+part of the image, while objects moving before a still camera leave the rest of it as noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from spikegyro.cmax.config import CMaxConfig, OneRotationTest
+from spikegyro.cmax.problem import Intrinsics, Problem, default_camera, make_problem
+from spikegyro.cmax.search import refine
+from spikegyro.events.core import EventArray
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """What :func:`rotation_agreement` found.
+
+    Attributes:
+        agreement: the lowest agreement over the judged halves (NaN: none judged).
+        gain: the whole window's contrast at ω over that at ω = 0.
+        half_gain: the lowest such gain of a half with enough events (NaN: none).
+        judged: how many halves were judged (0 to 4).
+        explains: the verdict: whether one rotation explains the events.
+    """
+
+    agreement: float
+    gain: float
+    half_gain: float
+    judged: int
+    explains: bool
+
+
+def _halves(problem: Problem) -> list[tuple[Problem, Problem]]:
+    """The two splits of ``problem``'s events at the median ray x and at the median ray y."""
+    splits = []
+    for coord in (problem.bx, problem.by):
+        below = coord < np.median(coord)
+        splits.append((_select(problem, below), _select(problem, ~below)))
+    return splits
+
+
+def _select(problem: Problem, mask: np.ndarray) -> Problem:
+    """The events of ``problem`` where ``mask`` holds."""
+    p = problem
+    return replace(p, bx=p.bx[mask], by=p.by[mask], dt=p.dt[mask], weights=p.weights[mask])
+
+
+def _judge(
+    a: Problem, b: Problem, omega: np.ndarray, config: CMaxConfig, test: OneRotationTest
+) -> list[float]:
+    """Agreements of halves ``a`` and ``b`` (each judged only where it shows structure)."""
+    sigma = config.sigma_px
+    own, flat = [], []
+    for half in (a, b):
+        found = refine(half, omega, 1, config, test.iterations)
+        own.append(found)
+        flat.append(half.contrast(np.zeros(3), 1, sigma)[0])
+    out = []
+    for k, half in enumerate((a, b)):
+        best, zero = own[k].contrast, flat[k]
+        if len(half) < test.min_events or not zero > 0:
+            continue
+        at_omega = half.contrast(omega, 1, sigma)[0] / zero
+        if best < test.min_gain * zero:
+            out.append((math.nan, at_omega))
+            continue
+        other = half.contrast(own[1 - k].omega, 1, sigma)[0]
+        out.append(((other - zero) / (best - zero), at_omega))
+    return out
+
+
+def rotation_agreement(
+    problem: Problem,
+    omega: np.ndarray,
+    config: CMaxConfig | None = None,
+    test: OneRotationTest | None = None,
+    rng: np.random.Generator | None = None,
+) -> Agreement:
+    """How well one rotation ω (3,) rad/s explains ``problem``'s events (see the module)."""
+    config = config or CMaxConfig()
+    test = test or config.one_rotation
+    rng = rng or np.random.default_rng(config.seed)
+    omega = np.asarray(omega, dtype=np.float64)
+    sub = problem.subset(2 * test.max_events, rng)
+    best = sub.contrast(omega, 1, config.sigma_px)[0]
+    zero = sub.contrast(np.zeros(3), 1, config.sigma_px)[0]
+    gain = best / zero if zero > 0 else math.nan
+    halves = [v for a, b in _halves(sub) for v in _judge(a, b, omega, config, test)]
+    agreements = [a for a, _ in halves if math.isfinite(a)]
+    worst = min(agreements) if agreements else math.nan
+    half_gain = min((g for _, g in halves), default=math.nan)
+    explains = (
+        not worst < test.min_agreement
+        and gain >= test.min_gain
+        and not half_gain < test.min_half_gain
+    )
+    return Agreement(worst, gain, half_gain, len(agreements), explains)
+
+
+def one_rotation_explains(
+    events: EventArray,
+    omega: np.ndarray,
+    camera: Intrinsics | None = None,
+    config: CMaxConfig | None = None,
+    test: OneRotationTest | None = None,
+    t_ref_us: float | None = None,
+) -> bool:
+    """Whether one rotation, ω (3,) rad/s, explains a window of ``events`` (see the module).
+
+    Args:
+        events: the window's events, on the sensor's pixels (hot pixels are dropped).
+        omega: the rotation to test, e.g. the window's contrast-maximization estimate.
+        camera: the sensor's intrinsics or ``Calibration``; default the simulator's pinhole.
+        config: estimator settings (blur, hot pixels); default :class:`CMaxConfig`.
+        test: the test's thresholds; default ``config.one_rotation``.
+        t_ref_us: the time ω stands for, µs (default: the middle of the events).
+
+    Returns:
+        False where the halves of the image disagree on the rotation, or the events show no
+        structure that a rotation sharpens.
+    """
+    config = config or CMaxConfig()
+    camera = camera or default_camera(events.width, events.height)
+    if len(events) < 2:
+        return False
+    rng = np.random.default_rng(config.seed)
+    problem = make_problem(events, camera, config, rng, t_ref_us)
+    return rotation_agreement(problem, omega, config, test, rng).explains
+
+
+def not_one_rotation(
+    problem: Problem,
+    omega: np.ndarray,
+    moved_px: float,
+    config: CMaxConfig,
+    rng: np.random.Generator | None = None,
+) -> bool:
+    """``ill_posed`` bit 4 for an estimate ω (3,) rad/s of ``problem`` that moves edges by
+    ``moved_px`` over its window: the halves disagree, or the estimate reports motion that
+    sharpens nothing (an estimate of too little motion to judge is not flagged here: bit 2
+    says so already)."""
+    test = config.one_rotation
+    if test is None or moved_px < config.min_motion_px:
+        return False
+    return not rotation_agreement(problem, omega, config, test, rng).explains

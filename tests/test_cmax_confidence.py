@@ -1,0 +1,78 @@
+"""ill_posed bit 4, "one rotation does not explain the events": recordings composed of two
+simulated rotations (one per half of the image) are flagged, single rotations are not; the
+live estimator and `predict` carry and count the bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from spikegyro.cmax.confidence import one_rotation_explains, rotation_agreement
+from spikegyro.cmax.config import CMaxConfig
+from spikegyro.cmax.live import CMaxEstimator
+from spikegyro.cmax.problem import make_problem
+from spikegyro.cmax.search import estimate_window
+from spikegyro.events.calib import PinholeCamera
+from spikegyro.events.core import EventArray
+from spikegyro.stream.estimator import ILL_NOT_ONE_ROTATION
+from tests.test_cmax import HEIGHT, WIDTH, F, point_track_events
+
+CAMERA = PinholeCamera(WIDTH, HEIGHT, F, F, WIDTH / 2, HEIGHT / 2)
+
+
+def two_rotations(omega_left, omega_right, duration_s=0.03, points=3000, seed=0) -> EventArray:
+    """The left half of the image from a camera turning at ``omega_left``, the right half from
+    one turning at ``omega_right`` (independent point scenes), merged in time order."""
+    left = point_track_events(np.radians(omega_left), seed, duration_s, points)
+    right = point_track_events(np.radians(omega_right), seed + 1, duration_s, points)
+    parts = [left[left.x < WIDTH // 2], right[right.x >= WIDTH // 2]]
+    x, y, t = (np.concatenate([getattr(p, k) for p in parts]) for k in ("x", "y", "t"))
+    order = np.argsort(t, kind="stable")
+    return EventArray.from_arrays(x[order], y[order], t[order], np.ones(len(t)), WIDTH, HEIGHT)
+
+
+@pytest.mark.parametrize(
+    "omega", [(0.0, 60.0, 0.0), (40.0, -30.0, 0.0), (0.0, 0.0, 90.0), (30.0, 20.0, -60.0)]
+)
+def test_one_rotation_explains_a_single_rotation(omega):
+    events = point_track_events(np.radians(omega), seed=3, points=3000)
+    estimate = estimate_window(events, CAMERA)
+    assert one_rotation_explains(events, estimate, CAMERA)
+
+
+@pytest.mark.parametrize(
+    ("left", "right"),
+    [((0.0, 60.0, 0.0), (0.0, -60.0, 0.0)), ((60.0, 0.0, 0.0), (0.0, 0.0, 90.0))],
+)
+def test_two_rotations_one_per_half_are_not_explained(left, right):
+    events = two_rotations(left, right)
+    estimate = estimate_window(events, CAMERA)
+    assert not one_rotation_explains(events, estimate, CAMERA)
+    # Each half alone is one rotation again.
+    for part in (events[events.x < WIDTH // 2], events[events.x >= WIDTH // 2]):
+        assert one_rotation_explains(part, estimate_window(part, CAMERA), CAMERA)
+
+
+def test_agreement_is_near_one_for_one_rotation_and_low_for_two():
+    omega = np.radians([20.0, 50.0, 30.0])
+    one = point_track_events(omega, seed=5, points=3000)
+    rng = np.random.default_rng(0)
+    good = rotation_agreement(make_problem(one, CAMERA, CMaxConfig(), rng), omega)
+    assert good.judged == 4 and good.agreement > 0.9 and good.explains
+    two = two_rotations((0.0, 60.0, 0.0), (0.0, -60.0, 0.0))
+    problem = make_problem(two, CAMERA, CMaxConfig(), rng)
+    bad = rotation_agreement(problem, estimate_window(two, CAMERA))
+    assert bad.agreement < 0.5 and not bad.explains
+
+
+def _stream(events: EventArray) -> np.ndarray:
+    est = CMaxEstimator(CAMERA).run(events)
+    assert len(est) >= 5
+    return (est.ill_posed & ILL_NOT_ONE_ROTATION) > 0
+
+
+def test_live_estimates_carry_bit_4_on_two_rotations_only():
+    single = point_track_events(np.radians([0.0, 60.0, 0.0]), seed=7, duration_s=0.2, points=4000)
+    assert _stream(single).mean() <= 0.1
+    double = two_rotations((0.0, 60.0, 0.0), (0.0, -60.0, 0.0), duration_s=0.2, points=4000)
+    assert _stream(double).mean() >= 0.9
