@@ -134,7 +134,7 @@ def test_cli_exports_and_refuses_bad_input(checkpoint, tmp_path, monkeypatch, ca
     (tmp_path / "junk.nir").write_text("not hdf5")
     for argv, text in (
         (["export-nir", str(ann), str(tmp_path / "a.nir")], "only SNN-6"),
-        (["export-nir", str(tmp_path / "none.pt"), str(out)], "none.pt: no such file"),
+        (["export-nir", str(tmp_path / "none.pt"), str(out)], "none.pt: no such checkpoint file"),
     ):
         monkeypatch.setattr(sys, "argv", ["spikegyro", *argv])
         with pytest.raises(SystemExit) as failed:

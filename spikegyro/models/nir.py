@@ -34,7 +34,9 @@ with the same mapping.
 4. *Threshold test.* SNN-6 fires at u ≥ θ, NIR at v > v_th (immaterial for real-valued v).
 
 :func:`from_nir` reads a graph back into :class:`~spikegyro.models.snn6.SNN6` where the mapping is
-exact: the weights, θ and τs (checked against SNN-6's), with τr from the metadata when present.
+exact: the weights, θ (checked against SNN-6's), τs and τr from the metadata when present. A
+network whose time constants were learned (``SNN6(learn_tau=True)``) exports them per layer and
+comes back as such a network.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ from spikegyro.errors import InputError
 from spikegyro.events.io import atomic_path
 from spikegyro.models.registry import read_checkpoint
 from spikegyro.models.snn6 import READOUT, SNN6, SNN6_LAYERS
+from spikegyro.snn.kernels import TAU_MAX_MS, TAU_MIN_MS
 from spikegyro.snn.layers import SRMParams
 
 NIR_EXTRA = "nir"
@@ -125,6 +128,7 @@ def to_nir(model: SNN6, height: int, width: int) -> Any:
     previous = "input"
     channels, h, w = model.in_channels, height, width
     for index, conv in enumerate(model.convs, start=1):
+        params = conv.current_params()  # learned time constants as they are now
         weight = conv.weight.detach().cpu().numpy().astype(np.float32)
         nodes[f"conv{index}"] = nir.Conv2d(
             input_shape=(h, w),
@@ -138,12 +142,12 @@ def to_nir(model: SNN6, height: int, width: int) -> Any:
         h, w = conv.output_size(h, w)
         channels = weight.shape[0]
         nodes[f"lif{index}"] = nir.CubaLIF(
-            **cubalif_parameters(conv.params, (channels, h, w)),
+            **cubalif_parameters(params, (channels, h, w)),
             metadata={
                 METADATA_KEY: {
-                    "tau_r_ms": conv.params.tau_r,
-                    "scale_ref": conv.params.scale_ref,
-                    "scale_rho": conv.params.scale_rho,
+                    "tau_r_ms": params.tau_r,
+                    "scale_ref": params.scale_ref,
+                    "scale_rho": params.scale_rho,
                 }
             },
         )
@@ -155,7 +159,7 @@ def to_nir(model: SNN6, height: int, width: int) -> Any:
     # NIR shapes carry no batch axis: flatten (C, 1, 1) from its first axis.
     nodes["flatten"] = nir.Flatten(input_type={"input": np.array([channels, 1, 1])}, start_dim=0)
     nodes["fc"] = nir.Linear(weight=model.fc.weight.detach().cpu().numpy().astype(np.float32))
-    nodes["readout"] = nir.CubaLI(**cubalif_parameters(READOUT, (3,)))
+    nodes["readout"] = nir.CubaLI(**cubalif_parameters(model.fc.current_params(), (3,)))
     nodes["output"] = nir.Output(output_type=np.array([3]))
     edges += [
         (previous, "gasp"),
@@ -183,67 +187,98 @@ def _metadata_float(node: Any, key: str, default: float) -> float:
 def from_nir(graph: Any) -> tuple[SNN6, tuple[int, int]]:
     """Rebuild SNN-6 from a graph written by :func:`to_nir`; returns (model, (height, width)).
 
-    Exact for what the graph holds: convolution and readout weights, θ and τs (which must equal
-    SNN-6's, else InputError), τr and the refractory scale from the metadata (SNN-6's values
-    where a foreign graph has none). Surrogate-gradient settings are SNN-6's own.
+    Exact for what the graph holds: convolution and readout weights, θ (which must equal
+    SNN-6's, else InputError), τs, and τr and the refractory scale from the metadata (SNN-6's
+    values where a foreign graph has none). Time constants other than SNN-6's come back as
+    learned ones (``SNN6(learn_tau=True)``, inside its bounds). Surrogate-gradient settings
+    are SNN-6's own.
     """
     nir = require_nir()
     shape = np.asarray(_node(graph, "input", nir.Input).input_type["input"])
     if shape.shape != (3,):
         raise InputError(f"NIR graph: input of shape {tuple(shape)}; SNN-6 takes (C, H, W).")
     channels, height, width = (int(v) for v in shape)
-    model = SNN6(in_channels=channels)
+    taus = _time_constants(graph, nir)
+    defaults = [(spec.params.tau_s, spec.params.tau_r) for spec in SNN6_LAYERS] + [
+        (READOUT.tau_s, None)
+    ]
+    learned = any(
+        not math.isclose(got, want, rel_tol=1e-6)
+        for pair, default in zip(taus, defaults, strict=True)
+        for got, want in zip(pair, default, strict=True)
+        if want is not None
+    )
+    model = SNN6(in_channels=channels, learn_tau=learned)
     for index, (conv, spec) in enumerate(zip(model.convs, SNN6_LAYERS, strict=True), start=1):
-        node = _node(graph, f"conv{index}", nir.Conv2d)
-        lif = _node(graph, f"lif{index}", nir.CubaLIF)
-        weight = np.asarray(node.weight)
-        if weight.shape != tuple(conv.weight.shape):
-            raise InputError(
-                f"NIR node 'conv{index}': weight of shape {weight.shape}, SNN-6 has "
-                f"{tuple(conv.weight.shape)}."
-            )
-        stride = tuple(int(s) for s in np.atleast_1d(node.stride))
-        if (
-            set(stride) != {spec.stride}
-            or np.any(np.asarray(node.padding) != 0)
-            or np.any(np.asarray(node.bias) != 0)
-        ):
-            raise InputError(
-                f"NIR node 'conv{index}': SNN-6 needs stride {spec.stride}, no padding, no bias."
-            )
-        tau = srm_tau_ms(lif, f"lif{index}")
-        theta = np.asarray(lif.v_threshold)
-        if not (
-            math.isclose(tau, spec.params.tau_s, rel_tol=1e-6)
-            and np.allclose(theta, spec.params.theta, rtol=1e-6)
-        ):
-            raise InputError(
-                f"NIR node 'lif{index}': τ = {tau:g} ms, θ = {float(theta.flat[0]):g}; SNN-6's "
-                f"layer {index} has τs = {spec.params.tau_s:g} ms, θ = {spec.params.theta:g}."
-            )
-        tau_r = _metadata_float(lif, "tau_r_ms", spec.params.tau_r)
-        scale_ref = _metadata_float(lif, "scale_ref", spec.params.scale_ref)
-        if (tau_r, scale_ref) != (spec.params.tau_r, spec.params.scale_ref):
-            raise InputError(
-                f"NIR node 'lif{index}': refractory τr = {tau_r:g} ms, scale {scale_ref:g}; "
-                f"SNN-6 has {spec.params.tau_r:g} ms, {spec.params.scale_ref:g}."
-            )
         with torch.no_grad():
-            conv.weight.copy_(torch.from_numpy(weight))
+            conv.weight.copy_(torch.from_numpy(_conv_weight(graph, nir, index, conv, spec)))
     fc = np.asarray(_node(graph, "fc", nir.Linear).weight)
-    readout_tau = srm_tau_ms(_node(graph, "readout", nir.CubaLI), "readout")
-    if fc.shape != tuple(model.fc.weight.shape) or not math.isclose(
-        readout_tau, READOUT.tau_s, rel_tol=1e-6
-    ):
+    if fc.shape != tuple(model.fc.weight.shape):
         raise InputError(
-            f"NIR graph: readout of shape {fc.shape} with τ = {readout_tau:g} ms; SNN-6 has "
-            f"{tuple(model.fc.weight.shape)} and τs = {READOUT.tau_s:g} ms."
+            f"NIR graph: readout of shape {fc.shape}; SNN-6 has {tuple(model.fc.weight.shape)}."
         )
     with torch.no_grad():
         model.fc.weight.copy_(torch.from_numpy(fc))
+    if learned:
+        for layer, (tau_s, tau_r) in zip((*model.convs, model.fc), taus, strict=True):
+            layer.set_time_constants(tau_s, tau_r)
     if min(height, width) < model.min_input_size():
         raise InputError(f"NIR graph: input {width}x{height} px is smaller than SNN-6 accepts.")
     return model.eval(), (height, width)
+
+
+def _conv_weight(graph: Any, nir: Any, index: int, conv: Any, spec: Any) -> np.ndarray:
+    """The weight of node ``conv{index}``, checked against SNN-6's layer (shape, stride, no
+    padding, no bias) and its neuron's threshold."""
+    node = _node(graph, f"conv{index}", nir.Conv2d)
+    weight = np.asarray(node.weight)
+    if weight.shape != tuple(conv.weight.shape):
+        raise InputError(
+            f"NIR node 'conv{index}': weight of shape {weight.shape}, SNN-6 has "
+            f"{tuple(conv.weight.shape)}."
+        )
+    stride = tuple(int(s) for s in np.atleast_1d(node.stride))
+    if (
+        set(stride) != {spec.stride}
+        or np.any(np.asarray(node.padding) != 0)
+        or np.any(np.asarray(node.bias) != 0)
+    ):
+        raise InputError(
+            f"NIR node 'conv{index}': SNN-6 needs stride {spec.stride}, no padding, no bias."
+        )
+    theta = np.asarray(_node(graph, f"lif{index}", nir.CubaLIF).v_threshold)
+    if not np.allclose(theta, spec.params.theta, rtol=1e-6):
+        raise InputError(
+            f"NIR node 'lif{index}': θ = {float(theta.flat[0]):g}; SNN-6's layer {index} has "
+            f"θ = {spec.params.theta:g}."
+        )
+    return weight
+
+
+def _time_constants(graph: Any, nir: Any) -> list[tuple[float, float | None]]:
+    """(τs, τr) in ms of lif1 … lif5 and (τs, None) of the readout; τr from the metadata
+    (SNN-6's where there is none). InputError where SNN-6 cannot hold them: another refractory
+    scale, or a τ outside the bounds of learned time constants."""
+    taus: list[tuple[float, float | None]] = []
+    for index, spec in enumerate(SNN6_LAYERS, start=1):
+        lif = _node(graph, f"lif{index}", nir.CubaLIF)
+        tau_r = _metadata_float(lif, "tau_r_ms", spec.params.tau_r)
+        scale_ref = _metadata_float(lif, "scale_ref", spec.params.scale_ref)
+        if scale_ref != spec.params.scale_ref:
+            raise InputError(
+                f"NIR node 'lif{index}': refractory scale {scale_ref:g}; SNN-6 has "
+                f"{spec.params.scale_ref:g}."
+            )
+        taus.append((srm_tau_ms(lif, f"lif{index}"), tau_r))
+    taus.append((srm_tau_ms(_node(graph, "readout", nir.CubaLI), "readout"), None))
+    for name, pair in zip([*(f"lif{i}" for i in range(1, 6)), "readout"], taus, strict=True):
+        for tau in pair:
+            if tau is not None and not TAU_MIN_MS < tau < TAU_MAX_MS:
+                raise InputError(
+                    f"NIR node '{name}': τ = {tau:g} ms; SNN-6 holds time constants in "
+                    f"({TAU_MIN_MS:g}, {TAU_MAX_MS:g}) ms."
+                )
+    return taus
 
 
 def export_nir(checkpoint: str | os.PathLike, out: str | os.PathLike) -> Path:

@@ -105,6 +105,9 @@ class SNN6(nn.Module):
             source network's output exactly but leaves the branch to grow from zero.
         tau_scale: factor on τs and τr of every spiking layer (a longer memory; 1 = the paper).
         readout_tau: τs of the readout's PSP, ms (8 = the paper).
+        learn_tau: train τs and τr of every spiking layer and τs of the readout (from the
+            values above), on the batch path and the event-driven engine alike; checkpoints
+            carry them (see :meth:`time_constants`, :meth:`tau_parameters`).
     """
 
     def __init__(
@@ -118,6 +121,7 @@ class SNN6(nn.Module):
         log_polar_share: float = 0.0,
         tau_scale: float = 1.0,
         readout_tau: float = READOUT.tau_s,
+        learn_tau: bool = False,
     ) -> None:
         super().__init__()
         if not (tau_scale > 0 and readout_tau > 0):
@@ -132,6 +136,7 @@ class SNN6(nn.Module):
         self.log_polar_centre = None if log_polar_centre is None else tuple(log_polar_centre)
         self.log_polar_r_min = float(log_polar_r_min)
         self.log_polar_share = float(log_polar_share)
+        self.learn_tau = bool(learn_tau)
         self._pixel_maps: dict[tuple[int, int], torch.Tensor] = {}
         # The log-polar copy of the input enters conv1 as extra channels.
         channels = in_channels * (2 if self.log_polar else 1)
@@ -146,6 +151,7 @@ class SNN6(nn.Module):
                     KERNEL_SIZE,
                     spec.stride,
                     binary_input=i > 0,
+                    learn_tau=self.learn_tau,
                 )
             )
             channels = spec.out_channels
@@ -153,7 +159,8 @@ class SNN6(nn.Module):
         self.conv1, self.conv2, self.conv3, self.conv4, self.conv5 = convs
         cells = self.readout_grid[0] * self.readout_grid[1]
         self.pool = GASP() if cells == 1 else RegionPool(self.readout_grid)
-        self.fc = SRMDense(channels * cells, 3, replace(READOUT, tau_s=float(readout_tau)))
+        readout = replace(READOUT, tau_s=float(readout_tau))
+        self.fc = SRMDense(channels * cells, 3, readout, learn_tau=self.learn_tau)
         self.reset_parameters(init_gain)
 
     @property
@@ -170,6 +177,24 @@ class SNN6(nn.Module):
         for i, conv in enumerate(self.convs):
             conv.requires_grad_(i >= layers)
         return [p for p in self.parameters() if p.requires_grad]
+
+    def time_constants(self) -> dict[str, dict[str, float]]:
+        """Current τs and τr (ms) per layer: {"conv1": {"tau_s": …, "tau_r": …}, …,
+        "fc": {"tau_s": …}} (learned or fixed)."""
+        out = {}
+        for name in (*(f"conv{i + 1}" for i in range(len(self.convs))), "fc"):
+            p = getattr(self, name).current_params()
+            out[name] = {"tau_s": p.tau_s, **({"tau_r": p.tau_r} if p.spiking else {})}
+        return out
+
+    def tau_parameters(self) -> list[nn.Parameter]:
+        """The parameters that hold the learned time constants (empty unless ``learn_tau``),
+        e.g. for an optimizer group of their own."""
+        return [
+            p
+            for name, p in self.named_parameters()
+            if name.endswith(("tau_s_param", "tau_r_param"))
+        ]
 
     def set_surrogate_cut(self, cut: float) -> None:
         """Bound the surrogate gradient of every spiking layer: ρ = 0 where the spike pdf falls
@@ -311,6 +336,9 @@ def adapt_state(state: dict[str, torch.Tensor], model: SNN6) -> dict[str, torch.
     - Other time constants (``tau_scale``, ``readout_tau``): the model keeps its own kernels and
       each layer's weights are multiplied by (source kernel area / new kernel area), which keeps
       the potential a steady input rate builds (the response to a single spike changes).
+    - Learned time constants (``learn_tau``): a model that learns τ takes the source's learned τ
+      and kernels as they are, or starts its τ from its own values (the rule above) when the
+      source's are fixed; a model with fixed τ drops a source's learned τ (the rule above).
     """
     state = dict(state)
     if model.readout_grid != (1, 1) and state["fc.weight"].shape[1] != model.fc.weight.shape[1]:
@@ -325,6 +353,12 @@ def adapt_state(state: dict[str, torch.Tensor], model: SNN6) -> dict[str, torch.
         state["conv1.weight"] = torch.cat([weight, zeros], dim=1)
     layers = [(f"conv{i + 1}", conv) for i, conv in enumerate(model.convs)] + [("fc", model.fc)]
     for name, layer in layers:
+        own_taus = {k: v for k, v in layer.named_parameters() if k.startswith("tau_")}
+        if own_taus and all(f"{name}.{k}" in state for k in own_taus):
+            continue  # a source with learned τ: its τ and the kernels they give
+        for key in (f"{name}.tau_s_param", f"{name}.tau_r_param"):
+            state.pop(key, None)
+        state.update({f"{name}.{k}": v.detach().clone() for k, v in own_taus.items()})
         own = layer.srm_kernel
         stored = state.get(f"{name}.srm_kernel")
         if stored is not None and (stored.shape != own.shape or not torch.equal(stored, own)):

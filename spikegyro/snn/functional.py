@@ -117,25 +117,55 @@ def _causal_filter(rows: torch.Tensor, kernel: torch.Tensor, *, adjoint: bool) -
     return out
 
 
+def kernel_gradient(grad: torch.Tensor, rows: torch.Tensor, taps: int) -> torch.Tensor:
+    """g[k] = Σ_t Σ_m grad[t, m]·rows[t − k, m] for 0 ≤ k < ``taps``: the gradient wrt the taps
+    of a causal filter y = kernel * rows (along the T rows of the (T, M) matrices) given ∂L/∂y.
+
+    Blocks of output steps take one matrix product with the input steps that reach them, whose
+    diagonals are then summed per lag: the cost of the forward filter, once.
+    """
+    steps = rows.shape[0]
+    out = torch.zeros(taps, dtype=grad.dtype, device=grad.device)
+    if rows.numel() == 0:
+        return out
+    block = max(_BLOCK_STEPS, taps)
+    for b0 in range(0, steps, block):
+        b1 = min(b0 + block, steps)
+        start = max(0, b0 - taps + 1)
+        products = torch.matmul(grad[b0:b1], rows[start:b1].t())
+        lag = (
+            torch.arange(b0, b1, device=grad.device)[:, None]
+            - torch.arange(start, b1, device=grad.device)[None, :]
+        )
+        valid = (lag >= 0) & (lag < taps)
+        out.index_add_(0, lag[valid], products[valid])
+    return out
+
+
 class _PSPFunction(torch.autograd.Function):
-    """Causal filtering along rows; the backward pass is the exact adjoint (a correlation)."""
+    """Causal filtering along rows; the backward pass is the exact adjoint (a correlation), and
+    the kernel's gradient where it is asked for (learned time constants)."""
 
     @staticmethod
     def forward(ctx, rows: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
-        ctx.save_for_backward(kernel)
+        ctx.save_for_backward(kernel, rows if kernel.requires_grad else None)
         return _causal_filter(rows, kernel, adjoint=False)
 
     @staticmethod
-    def backward(ctx, grad: torch.Tensor) -> tuple[torch.Tensor, None]:
-        (kernel,) = ctx.saved_tensors
-        return _causal_filter(grad, kernel, adjoint=True), None
+    def backward(ctx, grad: torch.Tensor) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        kernel, rows = ctx.saved_tensors
+        grad_rows = _causal_filter(grad, kernel, adjoint=True) if ctx.needs_input_grad[0] else None
+        grad_kernel = None
+        if ctx.needs_input_grad[1]:
+            grad_kernel = kernel_gradient(grad, rows, kernel.numel()).to(kernel.dtype)
+        return grad_rows, grad_kernel
 
 
 def psp(x: torch.Tensor, kernel: torch.Tensor, dim: int = -1) -> torch.Tensor:
     """Post-synaptic potential: causal convolution of ``x`` with ``kernel`` along ``dim``.
 
     psp(x)[t] = Σ_k kernel[k]·x[t − k] (Ts = 1 ms), zero history before t = 0. Differentiable in
-    ``x``; the kernel is a constant.
+    ``x`` and, when it requires a gradient (a learned time constant), in ``kernel``.
 
     Args:
         x: spikes (or any signal), time along ``dim`` in 1 ms steps.
@@ -249,7 +279,12 @@ def _one_cpu_thread(rows: torch.Tensor) -> Iterator[None]:
 
 
 class _SpikeFunction(torch.autograd.Function):
-    """Threshold + refractory recursion forward; surrogate ρ(u) backward, none through ν."""
+    """Threshold + refractory recursion forward; surrogate ρ(u) backward, none through ν.
+
+    When ν requires a gradient (a learned τr), ∂L/∂ν[k] = Σ_t δ[t]·s[t − k] with δ = ρ(u)·∂L/∂s:
+    the derivative of u wrt ν holding the spikes that ν acts on fixed, the one part of the
+    refractory term that SLAYER's rule (no gradient through the feedback) leaves.
+    """
 
     @staticmethod
     def forward(
@@ -268,7 +303,8 @@ class _SpikeFunction(torch.autograd.Function):
             ctx.mark_dirty(rows)
         ctx.mark_non_differentiable(potential)
         ctx.set_materialize_grads(False)  # no zero-filled gradient for the potential output
-        ctx.save_for_backward(potential)
+        fired = spikes.to(torch.bool) if ref_kernel.requires_grad else None
+        ctx.save_for_backward(potential, ref_kernel, fired)
         ctx.constants = (theta, scale_rho, tau_rho, cut)
         return spikes, potential
 
@@ -278,14 +314,18 @@ class _SpikeFunction(torch.autograd.Function):
     ) -> tuple[torch.Tensor | None, ...]:
         if grad is None:
             return (None,) * 7
-        (potential,) = ctx.saved_tensors
+        potential, ref_kernel, fired = ctx.saved_tensors
         theta, scale_rho, tau_rho, cut = ctx.constants
         fused = _fused(potential) if cut == 0.0 else None  # the fused kernel has no cut
         if fused is not None:
             rho = fused.surrogate_backward(potential, grad, theta, scale_rho, tau_rho)
         else:
             rho = surrogate_gradient(potential, theta, scale_rho, tau_rho, cut).mul_(grad)
-        return rho, None, None, None, None, None, None
+        grad_ref = None
+        if ctx.needs_input_grad[2]:
+            spikes = fired.to(rho.dtype)
+            grad_ref = kernel_gradient(rho, spikes, ref_kernel.numel()).to(ref_kernel.dtype)
+        return rho, None, grad_ref, None, None, None, None
 
 
 def spike_fn(
@@ -308,7 +348,8 @@ def spike_fn(
 
     Args:
         potential: membrane potential before refractory responses, time along ``dim`` (1 ms).
-        theta: threshold θ; ref_kernel: ν from :func:`spikegyro.snn.kernels.refractory_kernel`.
+        theta: threshold θ; ref_kernel: ν from :func:`spikegyro.snn.kernels.refractory_kernel`
+            (differentiable as described in :class:`_SpikeFunction` when it requires a gradient).
         scale_rho, tau_rho: surrogate height (relative to 1/θ) and width (relative to θ).
         dim: the time axis.
         overwrite: reuse the storage of ``potential`` (when time-major) for the potential with

@@ -68,3 +68,67 @@ def refractory_kernel(
             break
         taps.append(value)
     return torch.tensor(taps, dtype=dtype)
+
+
+# ------------------------------------------------------------------- learned time constants
+
+TAU_MIN_MS = 0.5
+"""Smallest learned time constant (ms): ε then keeps 4 taps and ν at least 3 (θ ≥ 0.1)."""
+
+TAU_MAX_MS = 32.0
+"""Largest learned time constant (ms): ε then spans 245 taps, ν 142 at θ = 0.4 (about 7.7·τs
+and 4.4·τr)."""
+
+TAU_GAIN = 20.0
+"""Gain of the stored parameter (see :func:`tau_from_param`): Adam moves a parameter by about
+its learning rate per step whatever the gradient's scale, so at the SNNs' 1e-4 a step moves
+ln τ by up to ~2e-3 (τ by a factor e in ~500 steps) instead of ~1e-4."""
+
+
+def tau_from_param(param: torch.Tensor) -> torch.Tensor:
+    """Time constant τ (ms) of a stored parameter ρ, smooth and bounded:
+    ln τ = ln TAU_MIN_MS + ln(TAU_MAX_MS / TAU_MIN_MS)·σ(TAU_GAIN·ρ).
+
+    τ stays in (TAU_MIN_MS, TAU_MAX_MS), so kernels keep a sane length, and its gradient
+    vanishes only smoothly towards the bounds (a clamp would stop a τ there for good).
+    """
+    span = math.log(TAU_MAX_MS / TAU_MIN_MS)
+    return torch.exp(math.log(TAU_MIN_MS) + span * torch.sigmoid(TAU_GAIN * param))
+
+
+def param_from_tau(tau: float) -> float:
+    """The parameter ρ whose :func:`tau_from_param` is ``tau`` ms (inside the bounds)."""
+    if not TAU_MIN_MS < tau < TAU_MAX_MS:
+        raise ValueError(
+            f"a learned time constant must lie in ({TAU_MIN_MS}, {TAU_MAX_MS}) ms, got {tau}"
+        )
+    share = math.log(tau / TAU_MIN_MS) / math.log(TAU_MAX_MS / TAU_MIN_MS)
+    return math.log(share / (1.0 - share)) / TAU_GAIN
+
+
+def srm_kernel_of(tau_s: torch.Tensor, *, epsilon: float = KERNEL_EPSILON) -> torch.Tensor:
+    """:func:`srm_kernel` as a differentiable function of a 0-dim tensor τs (ms), in its dtype.
+
+    The length follows the truncation rule at the current τs; the taps' derivative is taken at
+    that fixed length (the rule is a step function of τs: ∂ε[k]/∂τs = ε[k]·(k − τs)/τs²).
+    """
+    length = srm_kernel(float(tau_s.detach()), epsilon=epsilon, dtype=torch.float64).numel()
+    ratio = torch.arange(length, dtype=tau_s.dtype, device=tau_s.device) / tau_s
+    return ratio * torch.exp(1.0 - ratio)
+
+
+def refractory_kernel_of(
+    theta: float,
+    tau_r: torch.Tensor,
+    *,
+    scale_ref: float = 2.0,
+    epsilon: float = KERNEL_EPSILON,
+) -> torch.Tensor:
+    """:func:`refractory_kernel` as a differentiable function of a 0-dim tensor τr (ms), at the
+    length the truncation rule gives the current τr (∂ν[k]/∂τr = ν[k]·(k − 1)/τr²)."""
+    length = refractory_kernel(
+        theta, float(tau_r.detach()), scale_ref=scale_ref, epsilon=epsilon, dtype=torch.float64
+    ).numel()
+    delays = torch.arange(length - 1, dtype=tau_r.dtype, device=tau_r.device)
+    taps = -scale_ref * theta * torch.exp(-delays / tau_r)
+    return torch.cat([taps.new_zeros(1), taps])

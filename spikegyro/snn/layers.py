@@ -15,13 +15,20 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import nn
 
 from spikegyro.snn.functional import TAU_RHO, conv_over_time, psp, spike_fn
-from spikegyro.snn.kernels import refractory_kernel, srm_kernel
+from spikegyro.snn.kernels import (
+    param_from_tau,
+    refractory_kernel,
+    refractory_kernel_of,
+    srm_kernel,
+    srm_kernel_of,
+    tau_from_param,
+)
 
 
 @dataclass(frozen=True)
@@ -52,18 +59,34 @@ class SRMParams:
 
 
 class _SRMLayer(nn.Module):
-    """Weights plus the layer's kernels as buffers (saved in checkpoints, replaceable on load)."""
+    """Weights plus the layer's kernels as buffers (saved in checkpoints, replaceable on load).
 
-    def __init__(self, params: SRMParams, weight_shape: tuple[int, ...]) -> None:
+    With ``learn_tau`` the time constants τs (and τr of a spiking layer) are trainable:
+    parameters ``tau_s_param`` and ``tau_r_param`` hold ρ with τ = ``tau_from_param(ρ)`` ms
+    (:func:`spikegyro.snn.kernels.tau_from_param`: bounded, smooth), the kernels follow them
+    in every forward pass (differentiably; their lengths by the truncation rule) and the
+    buffers ``srm_kernel``/``ref_kernel`` hold a copy of the kernels at the current τ, of the
+    length those need, for checkpoints and for the streaming engine. ``params`` keeps the
+    initial values.
+    """
+
+    def __init__(
+        self, params: SRMParams, weight_shape: tuple[int, ...], learn_tau: bool = False
+    ) -> None:
         super().__init__()
         self.params = params
+        self.learn_tau = bool(learn_tau)
         self.weight = nn.Parameter(torch.empty(weight_shape))
+        if self.learn_tau:
+            self.tau_s_param = nn.Parameter(torch.tensor(param_from_tau(params.tau_s)))
+            if params.spiking:
+                self.tau_r_param = nn.Parameter(torch.tensor(param_from_tau(params.tau_r)))
         for name, kernel in self._kernels(torch.float32).items():
             self.register_buffer(name, kernel)
         self.reset_parameters()
 
     def _kernels(self, dtype: torch.dtype) -> dict[str, torch.Tensor]:
-        p = self.params
+        p = self.current_params()
         kernels = {"srm_kernel": srm_kernel(p.tau_s, dtype=dtype)}
         if p.spiking:
             kernels["ref_kernel"] = refractory_kernel(
@@ -71,13 +94,77 @@ class _SRMLayer(nn.Module):
             )
         return kernels
 
+    def tau_s(self) -> torch.Tensor:
+        """τs (ms), a 0-dim float64 tensor: differentiable in ``tau_s_param`` when learned
+        (the kernels are computed in float64 and then cast, as the fixed ones are)."""
+        if self.learn_tau:
+            return tau_from_param(self.tau_s_param.double())
+        return torch.tensor(self.params.tau_s, dtype=torch.float64)
+
+    def tau_r(self) -> torch.Tensor:
+        """τr (ms) of a spiking layer, a 0-dim float64 tensor (see :meth:`tau_s`)."""
+        if self.learn_tau:
+            return tau_from_param(self.tau_r_param.double())
+        return torch.tensor(self.params.tau_r, dtype=torch.float64)
+
+    def current_params(self) -> SRMParams:
+        """``params`` with the current (learned) τs and τr, in ms."""
+        if not self.learn_tau:
+            return self.params
+        tau_r = float(self.tau_r().detach()) if self.params.spiking else self.params.tau_r
+        return replace(self.params, tau_s=float(self.tau_s().detach()), tau_r=tau_r)
+
+    def set_time_constants(self, tau_s: float, tau_r: float | None = None) -> None:
+        """Set the learned τs (and τr), ms, inside the bounds of :func:`param_from_tau`."""
+        if not self.learn_tau:
+            raise ValueError("set_time_constants: this layer's time constants are fixed")
+        with torch.no_grad():
+            self.tau_s_param.fill_(param_from_tau(tau_s))
+            if tau_r is not None and self.params.spiking:
+                self.tau_r_param.fill_(param_from_tau(tau_r))
+        self.refresh_kernels()
+
+    def current_kernels(self) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(ε, ν or None) at the current τ: from the learned τ in the weight's dtype, on the
+        graph of ``tau_*_param`` (and copied into the buffers), else the buffers."""
+        if not self.learn_tau:
+            return self.srm_kernel, getattr(self, "ref_kernel", None)
+        dtype = self.weight.dtype
+        srm = srm_kernel_of(self.tau_s()).to(dtype)
+        ref = None
+        if self.params.spiking:
+            p = self.params
+            ref = refractory_kernel_of(p.theta, self.tau_r(), scale_ref=p.scale_ref).to(dtype)
+        self.srm_kernel = srm.detach().clone()
+        if ref is not None:
+            self.ref_kernel = ref.detach().clone()
+        return srm, ref
+
+    @torch.no_grad()
+    def refresh_kernels(self) -> None:
+        """Bring the kernel buffers to the current learned τ (a no-op for fixed ones)."""
+        if self.learn_tau:
+            self.current_kernels()
+
+    def _save_to_state_dict(self, destination, prefix, keep_vars) -> None:
+        self.refresh_kernels()  # an optimizer step since the last forward moved τ
+        super()._save_to_state_dict(destination, prefix, keep_vars)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        if self.learn_tau:  # the stored kernels have the lengths of the stored τ
+            for name in ("srm_kernel", "ref_kernel"):
+                stored, own = state_dict.get(prefix + name), getattr(self, name, None)
+                if stored is not None and own is not None and stored.shape != own.shape:
+                    setattr(self, name, own.new_empty(stored.shape))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
     def exact_kernels(self) -> None:
         """Recompute the kernels from the parameters, in the weight's dtype and on its device.
 
         ``.double()`` only widens the float32 taps, which keep their rounding (≤ 6e-8 relative);
         a float64 forward with exact taps (call this after ``.double()``) is the reference that
         the streaming engine, which runs the kernels as exact recursions, reproduces to the last
-        bits.
+        bits. Learned kernels are computed in the weight's dtype at every forward pass anyway.
         """
         for name, kernel in self._kernels(torch.float64).items():
             setattr(self, name, kernel.to(self.weight))
@@ -89,7 +176,7 @@ class _SRMLayer(nn.Module):
         with torch.no_grad():
             self.weight.uniform_(-bound, bound)
 
-    def _fire(self, potential: torch.Tensor) -> torch.Tensor:
+    def _fire(self, potential: torch.Tensor, ref_kernel: torch.Tensor | None) -> torch.Tensor:
         """Spikes of a time-major (T, …) potential (the potential itself when non-spiking).
 
         The potential is an intermediate of this layer, so its storage is reused.
@@ -98,7 +185,7 @@ class _SRMLayer(nn.Module):
             return potential
         p = self.params
         return spike_fn(
-            potential, p.theta, self.ref_kernel, p.scale_rho, p.tau_rho, dim=0, overwrite=True,
+            potential, p.theta, ref_kernel, p.scale_rho, p.tau_rho, dim=0, overwrite=True,
             cut=p.rho_cut,
         )  # fmt: skip
 
@@ -119,11 +206,13 @@ class SRMConv(_SRMLayer):
         stride: int = 1,
         padding: int = 0,
         binary_input: bool = False,
+        learn_tau: bool = False,
     ) -> None:
         self.stride = stride
         self.padding = padding
         self.binary_input = binary_input
-        super().__init__(params, (out_channels, in_channels, kernel_size, kernel_size))
+        shape = (out_channels, in_channels, kernel_size, kernel_size)
+        super().__init__(params, shape, learn_tau)
 
     def output_size(self, height: int, width: int) -> tuple[int, int]:
         """Spatial size (px) of the output map for an input of ``height`` × ``width`` px."""
@@ -141,13 +230,14 @@ class SRMConv(_SRMLayer):
         conv = functools.partial(
             conv_over_time, weight=self.weight, stride=self.stride, padding=self.padding
         )
+        srm, ref = self.current_kernels()
         # PSP and convolution commute: filter on whichever side has fewer neurons. On the
         # input of layer 1 this also skips the PSP's backward pass (the input needs no gradient).
         if channels * height * width <= self.weight.shape[0] * out_height * out_width:
-            potential = conv(psp(x, self.srm_kernel, dim=0))
+            potential = conv(psp(x, srm, dim=0))
         else:
-            potential = psp(conv(x, binary=self.binary_input), self.srm_kernel, dim=0)
-        return self._fire(potential).permute(1, 2, 3, 4, 0)
+            potential = psp(conv(x, binary=self.binary_input), srm, dim=0)
+        return self._fire(potential, ref).permute(1, 2, 3, 4, 0)
 
 
 class SRMDense(_SRMLayer):
@@ -156,12 +246,15 @@ class SRMDense(_SRMLayer):
     With ``params.theta = None`` it is the non-spiking readout: the PSP of the weighted input.
     """
 
-    def __init__(self, in_features: int, out_features: int, params: SRMParams) -> None:
-        super().__init__(params, (out_features, in_features))
+    def __init__(
+        self, in_features: int, out_features: int, params: SRMParams, learn_tau: bool = False
+    ) -> None:
+        super().__init__(params, (out_features, in_features), learn_tau)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         current = torch.nn.functional.linear(x.permute(2, 0, 1), self.weight)
-        return self._fire(psp(current, self.srm_kernel, dim=0)).permute(1, 2, 0)
+        srm, ref = self.current_kernels()
+        return self._fire(psp(current, srm, dim=0), ref).permute(1, 2, 0)
 
 
 class GASP(nn.Module):

@@ -72,8 +72,10 @@ class _Layer:
     surrogate: np.ndarray
 
     @classmethod
-    def of(cls, conv: SRMConv, in_hw: tuple[int, int], dtype: type) -> _Layer:
-        p = conv.params
+    def of(cls, conv: SRMConv, in_hw: tuple[int, int], dtype: type, tau: bool = False) -> _Layer:
+        """The layer ``conv`` for ``in_hw`` (px) input in ``dtype``; ``tau``: its passes also
+        compute ∂u/∂τs and ∂u/∂τr (learned time constants)."""
+        p = conv.current_params()
         if not p.spiking or conv.padding:
             raise ValueError("the event-driven engine runs spiking conv layers without padding")
         width = surrogate_half_width(p.theta, p.tau_rho, p.rho_cut)
@@ -85,7 +87,9 @@ class _Layer:
             )
         kernel = conv.weight.shape[-1]
         out_hw = conv.output_size(*in_hw)
-        alpha, taps = alpha_constants(conv.srm_kernel.detach().double().cpu().numpy(), dtype)
+        with torch.no_grad():
+            srm, ref = (k.double().cpu().numpy() for k in conv.current_kernels())
+        alpha, taps = alpha_constants(srm, dtype, p.tau_s if tau else None)
         weight = conv.weight.detach().permute(2, 3, 1, 0).flatten(0, 1).cpu().numpy()
         return cls(
             weight=channel_blocks(weight.astype(dtype)),
@@ -94,7 +98,7 @@ class _Layer:
             fan=fanout(in_hw, out_hw, kernel, conv.stride),
             alpha=alpha,
             taps=taps,
-            refractory=refractory_constants(conv.ref_kernel.detach().double().cpu().numpy(), dtype),
+            refractory=refractory_constants(ref, dtype, p.tau_r if tau else None),
             theta=dtype(p.theta),
             half_width=dtype(width),
             surrogate=np.array(
@@ -112,10 +116,11 @@ class _Layer:
 
     def forward(
         self, inputs: Lists, record: bool, storage: _Storage, key: str
-    ) -> tuple[Lists, tuple[np.ndarray, ...]]:
-        """(output spike lists, (active offsets (tiles, T + 1), indices, potentials)), written
-        into the buffers ``storage.kept[key]`` (the tiles' spikes through ``storage.scratch``),
-        which keep them."""
+    ) -> tuple[Lists, tuple[np.ndarray, ...], np.ndarray]:
+        """(output spike lists, (active offsets (tiles, T + 1), indices, potentials), ∂u/∂τs
+        and ∂u/∂τr of the active pairs interleaved (empty unless the layer computes them)),
+        written into the buffers ``storage.kept[key]`` (the tiles' spikes through
+        ``storage.scratch``), which keep them."""
         empty = _empty_buffers(self.weight.dtype)
         scratch = _taken(storage.scratch, "spikes", empty[:1])[0]
         buffers = (scratch, _taken(storage.kept, key, empty))
@@ -125,12 +130,9 @@ class _Layer:
             buffers,
         )  # fmt: skip
         storage.scratch["spikes"] = (scratch,)
-        spk_off, spk_idx, act_off, act_idx, act_u = lists
-        return (spk_off, spk_idx, _ones(spk_idx.size, self.weight.dtype)), (
-            act_off,
-            act_idx,
-            act_u,
-        )
+        spk_off, spk_idx, act_off, act_idx, act_u, act_tau = lists
+        spikes = (spk_off, spk_idx, _ones(spk_idx.size, self.weight.dtype))
+        return spikes, (act_off, act_idx, act_u), act_tau
 
 
 @dataclass
@@ -145,7 +147,7 @@ class _Storage:
 
 
 def _empty_buffers(dtype: np.dtype) -> Buffers:
-    return np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, dtype)
+    return np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, dtype), np.empty(0, dtype)
 
 
 def _taken(store: Kept, key: str, empty: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
@@ -176,11 +178,15 @@ class _Element:
     inputs: list[Lists] = field(default_factory=list)  # the input of each layer
     # per layer (offsets, indices, u) of the pairs in the support; δ over u after the backward
     active: list[tuple[np.ndarray, ...]] = field(default_factory=list)
+    # per layer ∂u/∂τs, ∂u/∂τr of those pairs, interleaved (empty where τ is not learned)
+    tau_sensitivity: list[np.ndarray] = field(default_factory=list)
     pooled: np.ndarray | None = None  # (features, T)
     forward_s: list[float] = field(default_factory=list)  # per layer
     backward_s: list[float] = field(default_factory=list)  # per layer, last layer first
     # weight gradients in the layers' channel blocks (channel_blocks), last layer first
     grads: list[np.ndarray] = field(default_factory=list)
+    # (∂L/∂τs, ∂L/∂τr) of the layers with learned τ, last layer first
+    tau_grads: list[tuple[float, float]] = field(default_factory=list)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -223,6 +229,16 @@ def _pool_deltas(
                 for cell in range(cells):
                     total += pooling[cell, pixel] * grad[c * cells + cell, t]
                 u[i] = surrogate_pdf(u[i], surrogate) * total
+
+
+def _tau_gradient(delta: np.ndarray, sensitivity: np.ndarray) -> tuple[float, float]:
+    """(∂L/∂τs, ∂L/∂τr) of a layer from δ = ∂L/∂u at its active pairs and ∂u/∂τs, ∂u/∂τr there
+    (interleaved; empty where τ is not learned: zeros), summed in float64. Elsewhere ρ(u) = 0,
+    so δ = 0 and the pairs contribute nothing."""
+    if not sensitivity.size:
+        return 0.0, 0.0
+    pairs = sensitivity.reshape(-1, 2).astype(np.float64)
+    return tuple(float(v) for v in delta.astype(np.float64) @ pairs)
 
 
 def _element_inputs(x: torch.Tensor) -> tuple[list[np.ndarray | Lists], list[float]]:
@@ -300,8 +316,11 @@ class EventDrivenStack:
         """Pooled last-layer spikes (N, features, T) of input (N, C, H, W, T) (time last, 1 ms),
         dense or a sparse COO tensor (the engine reads its entries, never a dense copy)."""
         weights = [conv.weight for conv in self.convs]
-        if torch.is_grad_enabled() and any(w.requires_grad for w in weights):
-            return _EventDrivenFunction.apply(self, x, *weights)
+        taus = [
+            tau for conv in self.convs if conv.learn_tau for tau in (conv.tau_s(), conv.tau_r())
+        ]
+        if torch.is_grad_enabled() and any(w.requires_grad for w in weights + taus):
+            return _EventDrivenFunction.apply(self, x, *weights, *taus)
         return self._forward(x, record=False)[0]
 
     def _forward(self, x: torch.Tensor, record: bool) -> tuple[torch.Tensor, _Plan]:
@@ -362,6 +381,19 @@ class EventDrivenStack:
             flat = unblocked(total)  # (kh·kw, in, out)
             shaped = flat.reshape(*conv.weight.shape[2:], *flat.shape[1:])  # (kh, kw, in, out)
             grads.append(torch.from_numpy(shaped).permute(3, 2, 0, 1).contiguous().to(conv.weight))
+        return grads + self._tau_grads(plan)
+
+    def _tau_grads(self, plan: _Plan) -> list[torch.Tensor | None]:
+        """[∂L/∂τs, ∂L/∂τr] of every layer with learned τ, in order (None below ``first``),
+        summed over the batch."""
+        learned = [i for i, conv in enumerate(self.convs) if conv.learn_tau]
+        totals = np.sum([e.tau_grads[::-1] for e in plan.elements], axis=0)  # from plan.first
+        grads: list[torch.Tensor | None] = []
+        for i in learned:
+            if i < plan.first:
+                grads += [None, None]
+                continue
+            grads += [torch.tensor(float(v), dtype=torch.float64) for v in totals[i - plan.first]]
         return grads
 
     def _stages(
@@ -424,7 +456,7 @@ class _EventDrivenFunction(torch.autograd.Function):
     the event-driven backward pass."""
 
     @staticmethod
-    def forward(ctx, engine: EventDrivenStack, x: torch.Tensor, *weights: torch.Tensor):
+    def forward(ctx, engine: EventDrivenStack, x: torch.Tensor, *weights_and_taus: torch.Tensor):
         pooled, plan = engine._forward(x, record=True)
         ctx.engine, ctx.plan = engine, plan
         return pooled
@@ -441,7 +473,7 @@ class _Plan:
     """The layers of one step, as the kernels take them, and what each element's forward kept."""
 
     layers: list[_Layer]
-    first: int  # the first layer whose weight learns (len(layers): none)
+    first: int  # the first layer whose weight or τ learns (len(layers): none)
     pooling: np.ndarray
     dtype: type
     elements: list[_Element] = field(default_factory=list)
@@ -458,9 +490,10 @@ class _Plan:
     ) -> _Plan:
         layers = []
         for conv in convs:
-            layers.append(_Layer.of(conv, size, dtype))
+            tau = record and conv.learn_tau and conv.tau_s_param.requires_grad
+            layers.append(_Layer.of(conv, size, dtype, tau))
             size = layers[-1].out_shape
-        trainable = [record and conv.weight.requires_grad for conv in convs]
+        trainable = [record and any(p.requires_grad for p in conv.parameters()) for conv in convs]
         first = trainable.index(True) if any(trainable) else len(convs)
         pooling = pooling_matrix(pool, *size, convs[0].weight.dtype).astype(dtype)
         return cls(layers, first, pooling, dtype)
@@ -490,11 +523,12 @@ class _Plan:
             )
             element.inputs.append((offsets, index, values.astype(self.dtype, copy=False)))
         start = time.thread_time()
-        spikes, active = self.layers[i].forward(
+        spikes, active, sensitivity = self.layers[i].forward(
             element.inputs[i], i >= self.first, storage, f"layer{i}"
         )
         element.forward_s.append(time.thread_time() - start)
         element.active.append(active)
+        element.tau_sensitivity.append(sensitivity)
         if i + 1 < len(self.layers):
             element.inputs.append(spikes)
         else:
@@ -515,6 +549,7 @@ class _Plan:
         start = time.thread_time()
         if i == len(self.layers) - 1:
             _pool_deltas(element.active[i], grad_pooled, self.pooling, layer.surrogate)
+        element.tau_grads.append(_tau_gradient(element.active[i][2], element.tau_sensitivity[i]))
         lower = max(i - 1, 0)  # the layer below, whose δ are wanted above ``first``
         wanted = i > self.first
         below = element.active[lower] if wanted else tuple(a[:0] for a in element.active[i])

@@ -269,25 +269,93 @@ def unblocked(blocked: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(blocked.transpose(1, 2, 0, 3)).reshape(taps, cin, blocks * width)
 
 
-def alpha_constants(kernel: np.ndarray, dtype: type) -> tuple[np.ndarray, int]:
+def alpha_constants(
+    kernel: np.ndarray, dtype: type, tau: float | None = None
+) -> tuple[np.ndarray, int]:
     """([c, p, −pᴸ, −L·pᴸ] in ``dtype``, L) for the truncated PSP taps ε[k] = c·k·pᵏ, k < L.
 
     c = ε[1]/p and p = ε[2]/(2·ε[1]) from the first taps (computed in float64 from taps exact to
     the last bit of a double they give c = e/τs and p = exp(−1/τs) to rounding); the rest of the
-    taps is checked against them.
+    taps is checked against them. With ``tau`` = τs (ms), the constants of ∂v/∂τs follow:
+    [c/τs², τs, −L²·pᴸ] (see :func:`_advance_tau`).
     """
     c, p = fit_alpha_kernel(kernel, "PSP kernel")
     size = np.asarray(kernel).size
-    consts = np.array([c, p, -(p**size), -size * p**size], dtype=dtype)
-    return consts, size
+    consts = [c, p, -(p**size), -size * p**size]
+    if tau is not None:
+        consts += [c / tau**2, tau, -(size**2) * p**size]
+    return np.array(consts, dtype=dtype), size
 
 
-def refractory_constants(kernel: np.ndarray, dtype: type) -> tuple[np.ndarray, int]:
+def refractory_constants(
+    kernel: np.ndarray, dtype: type, tau: float | None = None
+) -> tuple[np.ndarray, int]:
     """([a, q, −a·q^(M−1)] in ``dtype``, M) for the refractory taps ν[k] = a·q^(k−1), 1 ≤ k < M
-    (potential units; ν[0] = 0)."""
+    (potential units; ν[0] = 0). With ``tau`` = τr (ms), the constants of ∂u/∂τr follow:
+    [1/τr², −a·(M − 1)·q^(M−1)]."""
     a, q = fit_exp_kernel(kernel, "refractory kernel")
     size = np.asarray(kernel).size
-    return np.array([a, q, -a * q ** (size - 1)], dtype=dtype), size
+    consts = [a, q, -a * q ** (size - 1)]
+    if tau is not None:
+        consts += [1.0 / tau**2, -a * (size - 1) * q ** (size - 1)]
+    return np.array(consts, dtype=dtype), size
+
+
+@numba.njit(cache=True, nogil=True)
+def _advance_tau(
+    state: np.ndarray,
+    z_now: np.ndarray,
+    z_old: np.ndarray,
+    sensitivity: np.ndarray,
+    n0: int,
+    n1: int,
+    alpha: np.ndarray,
+    refractory: np.ndarray,
+) -> None:
+    """∂u[t]/∂τs and ∂u[t]/∂τr of the neurons ``n0:n1`` into ``sensitivity`` (2, neurons), and
+    one step of the two recursions behind them (state rows 3 and 4); runs before
+    :func:`_advance`, whose inputs it reads.
+
+    With the moments M_j[t] = Σ_{k<L} kʲ·pᵏ·z[t − k] (A = M_0, D = M_1, v = c·D) and c = e/τs,
+    p = exp(−1/τs): ∂v/∂τs = (c/τs²)·(M_2 − τs·M_1), and M_2 runs as a third pole,
+    M_2[t] = p·(M_2 + 2·D + A)[t − 1] − L²·pᴸ·z[t − L] (exactly 0 from k = L on). With
+    R = a·Σ_{1≤k<M} q^(k−1)·s[t − k] and R_1 = a·Σ_{1≤k<M} (k − 1)·q^(k−1)·s[t − k]:
+    ∂R/∂τr = R_1/τr², R_1[t + 1] = q·(R_1 + R)[t] − a·(M − 1)·q^(M−1)·s[t + 1 − M] (that last
+    term in :func:`_refract`). The spikes are held fixed (no gradient through the refractory
+    feedback).
+    """
+    p_eps, tail_a, tail_d, gain_s, tau_s, tail_m = (
+        alpha[1], alpha[2], alpha[3], alpha[4], alpha[5], alpha[6]
+    )  # fmt: skip
+    q_ref, gain_r = refractory[1], refractory[3]
+    a, d, r = state[0, n0:n1], state[1, n0:n1], state[2, n0:n1]
+    m, r1 = state[3, n0:n1], state[4, n0:n1]
+    z, old = z_now[n0:n1], z_old[n0:n1]
+    ds, dr = sensitivity[0, n0:n1], sensitivity[1, n0:n1]
+    for o in range(n1 - n0):  # m = p·(M_2 + 2·D + A)[t−1], r1 = R_1[t]
+        dd = d[o] + tail_d * old[o]
+        aa = a[o] + z[o] + tail_a * old[o]
+        mm = m[o] + tail_m * old[o]
+        ds[o] = gain_s * (mm - tau_s * dd)
+        dr[o] = gain_r * r1[o]
+        m[o] = p_eps * (mm + 2.0 * dd + aa)
+        r1[o] = q_ref * (r1[o] + r[o])
+
+
+@numba.njit(cache=True, nogil=True)
+def _record_tau(
+    sensitivity: np.ndarray,
+    act_index: np.ndarray,
+    act_tau: np.ndarray,
+    span: tuple[int, int],
+    base: int,
+) -> None:
+    """Copy ∂u/∂τs and ∂u/∂τr of the active pairs ``span`` (neurons ``base`` + n) to
+    act_tau[2j], act_tau[2j + 1]."""
+    for j in range(span[0], span[1]):
+        n = act_index[j] - base
+        act_tau[2 * j] = sensitivity[0, n]
+        act_tau[2 * j + 1] = sensitivity[1, n]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -393,7 +461,7 @@ def _append_bits(
 def _refract(
     spikes: np.ndarray,
     expiring: np.ndarray,
-    pole: np.ndarray,
+    state: np.ndarray,
     refractory: np.ndarray,
     live: np.ndarray,
     t: int,
@@ -404,11 +472,16 @@ def _refract(
     kernel's truncation; skipped where the pixel's state was just cleared); a new spike keeps its
     pixel live while its response lasts, to step ``last`` = t + M − 1. Neurons are numbered in
     the layer, ``base`` + the tile's own. refractory = [a, q, −a·q^(M−1)]
-    (:func:`refractory_constants`)."""
+    (:func:`refractory_constants`), R in state row 2; with learned τ also R_1's truncation
+    (refractory[4], row 4; :func:`_advance_tau`)."""
+    pole = state[2]
     div = divisor(pole.size // live.size)
+    learn = refractory.size > 3
     for n in expiring:
         if live[quotient(n - base, div)] > t:
             pole[n - base] += refractory[2]
+            if learn:
+                state[4, n - base] += refractory[4]
     for n in spikes:
         pixel = quotient(n - base, div)
         pole[n - base] += refractory[0]
@@ -420,21 +493,23 @@ def _update(
     state: np.ndarray,
     z_now: np.ndarray,
     z_old: np.ndarray,
-    potential: np.ndarray,
+    potential: tuple[np.ndarray, np.ndarray],
     live: np.ndarray,
     t: int,
     alpha: np.ndarray,
-    q_ref: float,
+    refractory: np.ndarray,
     thresholds: tuple[float, float, bool],
-    lists: tuple[np.ndarray, np.ndarray, np.ndarray],
+    lists: Buffers,
     counts: np.ndarray,
     base: int,
 ) -> None:
     """Step ``t`` of every live pixel of the tile, in runs of adjacent ones; a pixel whose last
     input and own spike have expired has its state cleared (the rounding residue of the tail)
-    and leaves."""
+    and leaves. ``potential``: (u, sensitivities (2, neurons) to τ, used with learned τ: those
+    of the active pairs go to lists[3])."""
     theta, half_width, record = thresholds
     cout = state.shape[1] // live.size
+    learn = alpha.size > 4
     pixel = 0
     while pixel < live.size:
         if live[pixel] < t:
@@ -444,8 +519,13 @@ def _update(
         while end < live.size and live[end] >= t:
             end += 1
         n0, n1 = pixel * cout, end * cout
-        _advance(state, z_now, z_old, potential, n0, n1, alpha, q_ref)
-        _threshold(potential, n0, n1, theta, half_width, record, lists, counts, base)
+        if learn:
+            _advance_tau(state, z_now, z_old, potential[1], n0, n1, alpha, refractory)
+        _advance(state, z_now, z_old, potential[0], n0, n1, alpha, refractory[1])
+        first = counts[1]
+        _threshold(potential[0], n0, n1, theta, half_width, record, lists[:3], counts, base)
+        if learn and record:
+            _record_tau(potential[1], lists[1], lists[3], (first, counts[1]), base)
         for q in range(pixel, end):
             if live[q] == t:  # every input has left the kernel
                 state[:, q * cout : (q + 1) * cout] = 0.0
@@ -454,14 +534,15 @@ def _update(
 
 _TILE_NEURONS = 8192  # × (L + 1 synaptic maps, 3 poles, u): ≈ 1 MB, a core's L2 cache
 
-Buffers = tuple[np.ndarray, np.ndarray, np.ndarray]
-"""Storage for (spike indices int32, active indices int32, active potentials) that a caller
-keeps between calls: the layer writes into it and returns it, as a larger copy when it was too
-small."""
+Buffers = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""Storage for (spike indices int32, active indices int32, active potentials, their derivatives
+wrt τs and τr interleaved (learned τ only)) that a caller keeps between calls: the layer writes
+into it and returns it, as a larger copy when it was too small."""
 
-LayerLists = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+LayerLists = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 """What a layer's pass gives: spike offsets (T + 1,), spike indices, active offsets (tiles,
-T + 1), active indices, active potentials u. The active pairs stay in the tiles' order: those of
+T + 1), active indices, active potentials u, and with learned τ ∂u/∂τs, ∂u/∂τr of each active
+pair j at [2j], [2j + 1] (else empty). The active pairs stay in the tiles' order: those of
 step t are the ranges ``offsets[s, t]:offsets[s, t + 1]`` over the tiles s, each sorted by neuron,
 the tiles in order of their neurons."""
 
@@ -494,9 +575,11 @@ def layer_forward(
         geometry: [stride, input width, output width, kernel width] (px); out_pixels: output
             height × width; fan: :func:`fanout`.
         alpha: [c, p, −pᴸ, −L·pᴸ] of the PSP kernel ε[k] = c·k·pᵏ for k < L = ``taps``
-            (steps), in the weight's dtype (:func:`alpha_constants`).
+            (steps), in the weight's dtype (:func:`alpha_constants`); followed by the
+            constants of ∂u/∂τs when the pass also computes the derivatives wrt τ.
         refractory: ([a, q, −a·q^(M−1)] in the weight's dtype, M) of the refractory kernel
-            ν[k] = a·q^(k−1), 1 ≤ k < M (potential units; :func:`refractory_constants`).
+            ν[k] = a·q^(k−1), 1 ≤ k < M (potential units; :func:`refractory_constants`);
+            with the constants of ∂u/∂τr when alpha has those of τs.
         thresholds: (θ, half-width of the surrogate's support, record): θ and the half-width as
             scalars of the weight's dtype, so that the comparisons are made in that precision as
             the batch path makes them; record: keep the pairs within the support (only a layer
@@ -514,7 +597,7 @@ def layer_forward(
     tile_rows = max(1, _TILE_NEURONS // (out_width * cout))
     steps = inputs[0].size - 1
     scratch, out = storage
-    lists = (scratch, out[1], out[2])
+    lists = (scratch, out[1], out[2], out[3])
     start = np.zeros(2, np.int64)  # where the tile's lists begin: spikes, active
     tiles = []
     for first_row in range(0, out_pixels // out_width, tile_rows):
@@ -529,8 +612,10 @@ def layer_forward(
     for s, tile in enumerate(tiles):
         active[s] = tile[1]
     n_spikes, n_active = spike_offsets[-1], start[1]
-    result = (spike_offsets, spikes[:n_spikes], active, lists[1][:n_active], lists[2][:n_active])
-    return result, (lists[0], (spikes, lists[1], lists[2]))
+    n_tau = 2 * n_active if alpha.size > 4 and thresholds[2] else 0
+    result = (spike_offsets, spikes[:n_spikes], active, lists[1][:n_active],
+              lists[2][:n_active], lists[3][:n_tau])  # fmt: skip
+    return result, (lists[0], (spikes, lists[1], lists[2], lists[3]))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -583,10 +668,12 @@ def _tile_forward(
     row_size = in_width * weight.shape[2]
     bounds = (tile[0] * stride * row_size, ((tile[1] - 1) * stride + kernel) * row_size)
     ref_consts, ref_len = refractory
-    state = np.zeros((3, neurons), dtype)  # p·A[t−1], p·(D[t−1] + A[t−1]), R[t]
+    learn = alpha.size > 4
+    # p·A[t−1], p·(D[t−1] + A[t−1]), R[t] (and for learned τ the poles of _advance_tau)
+    state = np.zeros((5 if learn else 3, neurons), dtype)
     # z[t] of the last L + 1 steps: z[t − L] leaves the PSP through the tail weights.
     synaptic = np.zeros((taps + 1, neurons), dtype)
-    potential = np.empty(neurons, dtype)
+    potential = (np.empty(neurons, dtype), np.empty((2, neurons if learn else 0), dtype))
     live = np.full(pixels, -1, np.int64)
     offsets = np.zeros((2, steps + 1), np.int64)  # spikes, active pairs
     offsets[:, 0] = start
@@ -602,13 +689,14 @@ def _tile_forward(
         # Room for every neuron of the step, so that the passes below need not check.
         active_room = counts[1] + neurons if thresholds[2] else 0
         lists = (_grow(lists[0], counts[0] + neurons), _grow(lists[1], active_room),
-                 _grow(lists[2], active_room))  # fmt: skip
+                 _grow(lists[2], active_room),
+                 _grow(lists[3], 2 * active_room if learn else 0))  # fmt: skip
         first = counts[0]
         _update(state, z_now, synaptic[(t + 1) % (taps + 1)], potential, live, t, alpha,
-                ref_consts[1], thresholds, lists, counts, base)  # fmt: skip
+                ref_consts, thresholds, lists, counts, base)  # fmt: skip
         old = t + 1 - ref_len  # the spikes of step t + 1 − M leave the refractory kernel
         expiring = lists[0][offsets[0, old] : offsets[0, old + 1]] if old >= 0 else lists[0][:0]
-        _refract(lists[0][first : counts[0]], expiring, state[2], ref_consts, live, t,
+        _refract(lists[0][first : counts[0]], expiring, state, ref_consts, live, t,
                  t + ref_len - 1, base)  # fmt: skip
         offsets[:, t + 1] = counts
     return offsets, lists

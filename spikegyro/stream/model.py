@@ -74,6 +74,8 @@ def spec_from_model(
             f"model {type(model).__name__}: streaming supports unpadded convolutions and a "
             "non-spiking readout only."
         )
+    for layer in (*convs, *dense):
+        layer.refresh_kernels()  # learned time constants: the kernels at the current τ
     layers = tuple(
         SRMLayerSpec(
             weight=_numpy(c.weight, dtype),
