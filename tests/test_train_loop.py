@@ -494,3 +494,35 @@ def test_online_mode_simulates_fresh_sequences_in_workers(tmp_path):
     result = train(config, progress=False)
     assert result.steps == 2 and np.isfinite(result.val["val_loss"])
     assert not any(tmp_path.glob("**/*.h5"))
+
+
+def test_cli_stops_on_a_failing_sample_in_one_line_keeping_the_checkpoint(
+    dataset, tmp_path, monkeypatch, capfd
+):
+    """A window that a data worker cannot make (here: every sample from step 3 on) ends the run
+    with one line: the cause, the checkpoint of step 2 kept, and the command that continues."""
+    from spikegyro.cli import run
+    from spikegyro.train.data import TrainingSamples
+
+    made = TrainingSamples.window
+
+    def window(self, index):
+        if index >= 4:  # batch 2: the samples of steps 3 and on
+            raise ValueError("unreadable\nwindow")
+        return made(self, index)
+
+    monkeypatch.setattr(TrainingSamples, "window", window)  # the forked worker inherits it
+    out = tmp_path / "run"
+    args = ["train", "--model", "ann6", "--data", str(dataset), "--out", str(out),
+            "--sensor-width", str(SIZE), "--sensor-height", str(SIZE), "--window-ms", "20",
+            "--loss-start-step", "10", "--batch-size", "2", "--iterations", "6", "--val-every",
+            "2", "--num-workers", "1", "--device", "cpu", "--bare-steps", "0"]  # fmt: skip
+    capfd.readouterr()
+    assert run(args) == 1
+    err = [line for line in capfd.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1, err
+    assert err[0].startswith("error: training stopped, a data worker failed: training sample 4 ")
+    assert "ValueError: unreadable window" in err[0]
+    assert f"{out / 'last.pt'} (step 2) is kept" in err[0]
+    assert err[0].endswith(f"continue with: spikegyro train --resume --out {out}")
+    assert load_checkpoint(out / "last.pt")[1]["extra"]["step"] == 2

@@ -18,7 +18,11 @@ ArrayLike = Any  # np.ndarray | torch.Tensor
 
 
 def _as_tensor(a: ArrayLike) -> torch.Tensor:
-    return a if isinstance(a, torch.Tensor) else torch.from_numpy(np.ascontiguousarray(a))
+    if isinstance(a, torch.Tensor):
+        return a
+    a = np.ascontiguousarray(a)
+    # a one-element reversed view counts as contiguous but keeps its negative stride
+    return torch.from_numpy(a.copy() if any(s < 0 for s in a.strides) else a)
 
 
 def _like(result: torch.Tensor, template: ArrayLike) -> ArrayLike:

@@ -80,10 +80,12 @@ def reverse_time(window: Window) -> Window:
     """Play the window backwards: times mirrored in the window, polarities swapped, ω -> -ω(T-τ)."""
     ev = window.events
     order = slice(None, None, -1)
+    # Copies, not reversed views: every consumer (torch.from_numpy above all) gets plain arrays.
+    # np.ascontiguousarray would not do, it keeps a one-element view's negative stride.
     events = replace(
         ev,
-        x=ev.x[order],
-        y=ev.y[order],
+        x=ev.x[order].copy(),
+        y=ev.y[order].copy(),
         t=(window.t_start_us + window.t_end_us - 1) - ev.t[order],
         p=(1 - ev.p[order]).astype(np.uint8),
     )

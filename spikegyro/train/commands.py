@@ -18,14 +18,16 @@ from collections.abc import Callable
 from dataclasses import fields
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import typer
 from rich.console import Console
 
 from spikegyro.errors import InputError
+from spikegyro.models.registry import read_checkpoint
 from spikegyro.pretrained import checkpoint_help
 from spikegyro.train import distributed
+from spikegyro.train.data import SampleError, sample_error_line
 from spikegyro.train.loop import TrainResult, resume_config, train
 from spikegyro.train.presets import PRESETS, SPARSE_DEFAULT_CUT, TrainConfig, resolve_config
 from spikegyro.train.relay import STATE_FILES, append_segment, plot_relay
@@ -217,6 +219,25 @@ def _report(config: TrainConfig, result: TrainResult) -> None:
         console.print(f"continue with: spikegyro train --out {result.run_dir} --resume")
 
 
+def _stop_on_bad_sample(config: TrainConfig, exc: SampleError) -> NoReturn:
+    """End a run whose data failed: one line with the cause, the checkpoint that is kept and the
+    command that continues from it; exit code 1."""
+    run = Path(config.out)
+    last = run / "last.pt"
+    if last.exists():
+        step = int(read_checkpoint(last)["extra"].get("step", 0))
+        kept = (
+            f"its last checkpoint {last} (step {step:,}) is kept; after fixing the cause, "
+            f"continue with: spikegyro train --resume --out {run}"
+        )
+    else:
+        kept = "no checkpoint was written yet; after fixing the cause, run the command again"
+    if distributed.init_rank() == 0:
+        cause = sample_error_line(exc)
+        typer.echo(f"error: training stopped, a data worker failed: {cause}; {kept}", err=True)
+    raise typer.Exit(1)
+
+
 @_with_config_options
 def train_command(
     preset: str = typer.Option("paper", help=f"Starting values: {', '.join(PRESETS)}."),
@@ -236,7 +257,10 @@ def train_command(
             f"warning: --amp {config.amp} on a CPU without bfloat16 instructions (AVX-512 BF16 or "
             "AMX): usually several times slower than float32 here (it is meant for GPUs)."
         )
-    result = train(config, resume=resume)
+    try:
+        result = train(config, resume=resume)
+    except SampleError as exc:
+        _stop_on_bad_sample(config, exc)
     if distributed.init_rank() == 0:
         _report(config, result)
     if result.interrupted:

@@ -508,6 +508,23 @@ class OnlineSource:
 Augment = Callable[[Window, np.random.Generator], Window]
 
 
+class SampleError(RuntimeError):
+    """A training sample could not be made (drawn, augmented or encoded).
+
+    Raised in a DataLoader worker, it reaches the training process with the worker's traceback
+    in its message; :func:`sample_error_line` recovers the one-line cause.
+    """
+
+
+def sample_error_line(exc: BaseException) -> str:
+    """The one-line cause of a :class:`SampleError`, also as a DataLoader worker re-raised it
+    (its message then ends with the worker's traceback, whose last line is the original)."""
+    lines = [line for line in str(exc).splitlines() if line.strip()]
+    last = lines[-1] if lines else type(exc).__name__
+    marker = f"{SampleError.__name__}: "
+    return last.split(marker, 1)[1] if marker in last else last
+
+
 class TrainingSamples(Dataset):
     """Map-style dataset over an endless stream of random training samples.
 
@@ -552,9 +569,13 @@ class TrainingSamples(Dataset):
     def __getitem__(self, index: int) -> tuple[torch.Tensor | EventBatch, torch.Tensor]:
         """(input, target) of sample ``index``: the encoded input, or with ``events`` the
         window's event lists (encoded later, on the device, by :func:`encode_batch`)."""
-        window = self.window(index)
-        encode = window_events if self.events else encode_window
-        return encode(window, self.spec), encode_target(window, self.spec)
+        try:
+            window = self.window(index)
+            encode = window_events if self.events else encode_window
+            return encode(window, self.spec), encode_target(window, self.spec)
+        except Exception as exc:  # whatever a reader, augmentation or encoder raises
+            cause = " ".join(f"{type(exc).__name__}: {exc}".split())
+            raise SampleError(f"training sample {index} (seed {self.seed}): {cause}") from exc
 
 
 def model_batch(
