@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from test_train_loop import dataset as tiny_dataset  # noqa: F401  (a fixture)
 
 from spikegyro.models.registry import load_checkpoint, save_checkpoint
 from spikegyro.models.snn6 import SNN6, adapt_state
@@ -324,3 +325,35 @@ def test_learned_tau_moves_under_training():
     after = model.time_constants()
     moved = [math.isclose(after[n][k], v) for n in before for k, v in before[n].items()]
     assert not any(moved)
+
+
+# ------------------------------------------------------------------------------ train
+
+
+def test_train_learn_tau_carries_tau_through_init_checkpoints_resume_and_predict(
+    tiny_dataset,  # noqa: F811  (the fixture imported above)
+    tmp_path,
+    monkeypatch,
+):
+    from test_train_loop import tiny_config
+
+    from spikegyro.stream.model import load_streaming_model
+    from spikegyro.train.loop import resume_config, train
+
+    monkeypatch.setenv("SPIKEGYRO_CACHE", str(tmp_path / "cache"))
+    dataset = tiny_dataset
+    train(tiny_config(dataset, tmp_path / "a", iterations=1), progress=False)
+    config = tiny_config(dataset, tmp_path / "b", init=str(tmp_path / "a" / "last.pt"),
+                         learn_tau=True, compute="sparse", iterations=3, lr=3e-3)  # fmt: skip
+    train(config, progress=False)
+    payload = torch.load(tmp_path / "b" / "last.pt", weights_only=False)
+    assert payload["model_kwargs"]["learn_tau"] is True
+    model, _ = load_checkpoint(tmp_path / "b" / "last.pt")
+    taus = model.time_constants()
+    assert not math.isclose(taus["conv5"]["tau_r"], 4.0) and not math.isclose(
+        taus["fc"]["tau_s"], 8
+    )
+    engine, _ = load_streaming_model(tmp_path / "b" / "last.pt")
+    assert len(engine.spec.layers[4].ref_kernel) == model.conv5.ref_kernel.numel()
+    with pytest.raises(Exception, match="learn_tau"):
+        resume_config(tmp_path / "b", {"learn_tau": False})

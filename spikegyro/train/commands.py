@@ -69,6 +69,7 @@ OPTION_HELP: dict[str, str] = {
     "model_kwargs": "Model constructor arguments as JSON.",
     "init": checkpoint_help("Start from these weights", None),
     "freeze": "SNN: keep the first N spiking layers' weights fixed (fine-tune the rest).",
+    "learn_tau": "SNN: also learn the time constants τs, τr of every layer (and the readout's).",
     "scale": "Factor on event coordinates (0.5: 240x180->120x90).",
     "window_ms": "Window length, ms.",
     "num_bins": "Voxel-grid bins (ANNs).",

@@ -100,6 +100,8 @@ def model_kwargs_of(config: TrainConfig, spec: InputSpec) -> dict[str, Any]:
     kwargs = dict(config.model_kwargs or {})
     if spec.output == "window_mean":
         kwargs.setdefault("in_channels", spec.in_channels)
+    if config.learn_tau:
+        kwargs["learn_tau"] = True
     return kwargs
 
 
@@ -245,7 +247,7 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-RUN_FIXED = ("model", "input", "model_kwargs", "freeze")
+RUN_FIXED = ("model", "input", "model_kwargs", "freeze", "learn_tau")
 """Options a resumed run cannot change."""
 
 

@@ -46,6 +46,8 @@ class TrainConfig:
         init: checkpoint whose weights start the training (fine-tuning); "" = random init.
         freeze: the SNN's first this many spiking layers keep their (``init``) weights; only the
             later layers and the readout learn (0 = all learn).
+        learn_tau: the SNN also learns the time constants τs and τr of every spiking layer and
+            τs of the readout (``SNN6(learn_tau=True)``; frozen layers keep theirs).
         sensor: (width, height) of the dataset's events, pixels.
         scale: factor on event coordinates before binning (0.5: 240x180 -> 120x90).
         window_ms: window length, ms, of validation windows and of the checkpoint's input spec.
@@ -105,6 +107,7 @@ class TrainConfig:
     model_kwargs: dict[str, Any] | None = None
     init: str = ""
     freeze: int = 0
+    learn_tau: bool = False
     sensor: tuple[int, int] = (240, 180)
     scale: float = 1.0
     window_ms: int = 100
@@ -167,6 +170,11 @@ class TrainConfig:
             raise InputError(
                 f"--freeze {self.freeze} with --model {self.model}: freezing layers is for the "
                 "SNNs (the ANNs' frozen batch norms would still learn their statistics)."
+            )
+        if self.learn_tau and self.input != "spikes":
+            raise InputError(
+                f"--learn-tau with --model {self.model}: time constants are the SNNs' (τs, τr); "
+                "the ANNs have none."
             )
         if not 0 <= self.freeze <= len(SNN6_LAYERS):
             raise InputError(
