@@ -4,19 +4,22 @@ Contrast maximization always returns the ω that sharpens the events best, also 
 itself moves (a static camera watching people walk) or where two parts of the image move
 differently. A camera's own rotation moves every part of the image the same way, so the events
 of any part are sharpened by the same ω. The test splits the window's events into halves, by
-ray x (left, right) and by ray y (top, bottom), refines ω on each half from the window's
-estimate, and asks how much of each half's own sharpening the other half's ω achieves:
+ray x (left, right) and by ray y (top, bottom), finds each half's own best ω (refined from the
+window's estimate and from 0, on a coarser image), and asks how much of that half's best
+contrast the window's ω achieves:
 
-    agreement(A, B) = (C_A(ω_B) - C_A(0)) / (C_A(ω_A) - C_A(0))
+    agreement(A) = C_A(ω) / C_A(ω_A)
 
-with ``C_A`` the contrast of half A's events (1: B's rotation sharpens A as well as A's own
-does; 0: no better than no rotation at all; negative: worse). Under one rotation both halves
-find the same ω up to noise, and the agreement stays near 1; under two rotations at least one
-half's events are sharpened poorly by the other's. Halves whose own sharpening is too weak to
-judge (gain over ω = 0 below ``min_gain``) are not compared. The test also says no where ω
-sharpens the whole window weakly (gain under ``min_gain``) or leaves a half with enough events
-almost unsharpened (gain under ``min_half_gain``): a camera's rotation sharpens every textured
-part of the image, while objects moving before a still camera leave the rest of it as noise.
+with ``C_A`` the contrast of half A's events (1: the window's rotation sharpens A as well as
+A's own does). Under one rotation every half's best is the window's ω up to noise; under two,
+the window's ω is a compromise that leaves at least one half well below its own best. (Halves'
+own estimates are not compared with each other: from half an image, roll trades off against
+tilt or pan, so they scatter along that direction even under one rotation.) Halves whose own
+sharpening is too weak to judge (best gain over ω = 0 below ``min_gain``) are not compared.
+The test also says no where ω sharpens the whole window weakly (gain under ``min_gain``) or
+leaves a half with enough events almost unsharpened (gain under ``min_half_gain``): a camera's
+rotation sharpens every textured part of the image, while objects moving before a still camera
+leave the rest of it as noise.
 """
 
 from __future__ import annotations
@@ -70,23 +73,26 @@ def _judge(
     a: Problem, b: Problem, omega: np.ndarray, config: CMaxConfig, test: OneRotationTest
 ) -> list[float]:
     """Agreements of halves ``a`` and ``b`` (each judged only where it shows structure)."""
-    sigma = config.sigma_px
+    sigma, scale = config.sigma_px, test.scale
     own, flat = [], []
     for half in (a, b):
-        found = refine(half, omega, 1, config, test.iterations)
+        # From ω and from 0: a half that another rotation moves may lie beyond ω's basin.
+        found = max(
+            (refine(half, start, scale, config, test.iterations) for start in (omega, 0 * omega)),
+            key=lambda r: r.contrast,
+        )
         own.append(found)
-        flat.append(half.contrast(np.zeros(3), 1, sigma)[0])
+        flat.append(half.contrast(np.zeros(3), scale, sigma)[0])
     out = []
     for k, half in enumerate((a, b)):
         best, zero = own[k].contrast, flat[k]
         if len(half) < test.min_events or not zero > 0:
             continue
-        at_omega = half.contrast(omega, 1, sigma)[0] / zero
+        at_omega = half.contrast(omega, scale, sigma)[0] / zero
         if best < test.min_gain * zero:
             out.append((math.nan, at_omega))
             continue
-        other = half.contrast(own[1 - k].omega, 1, sigma)[0]
-        out.append(((other - zero) / (best - zero), at_omega))
+        out.append((at_omega * zero / best, at_omega))
     return out
 
 

@@ -26,14 +26,19 @@ class OneRotationTest:
         min_events: halves with fewer events are not judged.
         iterations: BFGS iterations refining each half's ω from the window's.
         max_events: events (random subsample) each half keeps at most (speed).
+        scale: image downscale factor the halves are compared at (speed).
+        every_ms: the live engine runs the test at most this often (ms of event time) and
+            carries its verdict to the estimates between (speed).
     """
 
-    min_agreement: float = 0.8
+    min_agreement: float = 0.9
     min_gain: float = 1.05
-    min_half_gain: float = 1.03
+    min_half_gain: float = 1.015
     min_events: int = 500
-    iterations: int = 8
-    max_events: int = 5000
+    iterations: int = 4
+    max_events: int = 2500
+    scale: int = 2
+    every_ms: float = 50.0
 
 
 @dataclass(frozen=True)

@@ -70,6 +70,7 @@ class CMaxEstimator:
         self.emitted = 0
         self.produced = 0
         self._seen = self._in_view = 0
+        self._not_one, self._tested_us = False, -(1 << 62)
         self.searches = 0
         self._omega: np.ndarray | None = None
         self._last_search_us: int | None = None
@@ -252,7 +253,12 @@ class CMaxEstimator:
         moved = pixel_speed(omega, float(self._intrinsics[0]), self._radius) * span_us * 1e-6
         if moved < config.min_motion_px:
             flags |= ILL_LITTLE_MOTION
-        if not_one_rotation(problem, omega, moved, config, self._rng):
+        test = config.one_rotation
+        t_us = self._last_t or 0
+        if test is not None and t_us - self._tested_us >= 1000 * test.every_ms:
+            self._not_one = not_one_rotation(problem, omega, moved, config, self._rng)
+            self._tested_us = t_us
+        if self._not_one and moved >= config.min_motion_px:
             flags |= ILL_NOT_ONE_ROTATION
         return flags
 

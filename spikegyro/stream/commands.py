@@ -42,6 +42,12 @@ WINDOW_MS = typer.Option(
     min=0.1,
     help="cmax: a fixed causal window of this many ms instead of the adaptive one.",
 )
+OFFLINE = typer.Option(
+    False,
+    "--offline",
+    help="cmax on a file: each estimate from the events on both sides of its time, with the "
+    "events and iterations accuracy needs (post-processing; not causal).",
+)
 CHECKPOINT = typer.Option(
     None,
     "--checkpoint",
@@ -91,6 +97,7 @@ def predict(
     method: str = METHOD,
     rate_hz: float = RATE_HZ,
     window_ms: float = WINDOW_MS,
+    offline: bool = OFFLINE,
     checkpoint: Path = CHECKPOINT,
     calib: Path = CALIB,
     intrinsics: tuple[float, float, float, float] = options.INTRINSICS,
@@ -114,7 +121,7 @@ def predict(
     not yet accurate on real recordings. Each output row is its own estimate, stamped at the
     time up to which it used events.
     """
-    _check_method(method, window_ms)
+    _check_method(method, window_ms, offline)
     check_prediction_path(out)
     inputs = stream_inputs(
         events, calib, intrinsics, gyro, imu_to_camera, width, height, start, end
@@ -124,9 +131,14 @@ def predict(
     if method == "cmax":
         # The CLI layer wires the estimators together; the stream package needs no baseline.
         from spikegyro.cmax.files import cmax_estimator_for_file
+        from spikegyro.cmax.offline import offline_estimator_for_file
 
-        estimator, note = cmax_estimator_for_file(
-            events, inputs.calibration, inputs.sensor, rate_hz, window_ms
+        estimator, note = (
+            offline_estimator_for_file(events, inputs.calibration, inputs.sensor, rate_hz)
+            if offline
+            else cmax_estimator_for_file(
+                events, inputs.calibration, inputs.sensor, rate_hz, window_ms
+            )
         )
         console.print(note)
     else:
@@ -144,9 +156,14 @@ def predict(
         console.print(SNN_REAL_DATA_NOTE)
 
 
-def _check_method(method: str, window_ms: float | None) -> None:
-    """``--method`` is known, and ``--window-ms`` goes with cmax only."""
+def _check_method(method: str, window_ms: float | None, offline: bool = False) -> None:
+    """``--method`` is known, ``--window-ms`` goes with cmax only, and ``--offline`` with cmax
+    without ``--window-ms``."""
     if method not in ("snn", "cmax"):
         raise InputError(f"--method {method}: choose 'snn' or 'cmax'.")
     if method == "snn" and window_ms is not None:
         raise InputError("--window-ms is for --method cmax; the SNN has no window.")
+    if offline and (method != "cmax" or window_ms is not None):
+        raise InputError(
+            "--offline is for --method cmax on a file, and sizes its own windows (no --window-ms)."
+        )

@@ -1,0 +1,294 @@
+"""Contrast maximization over a whole recording: each estimate from the events around its time.
+
+Where the live engine (:mod:`spikegyro.cmax.live`) may use only the past and must keep up, a
+file can be post-processed: the estimate for time ``t`` uses the events of a window centred on
+``t``, so it stands for ``t`` itself (the mean rate over a centred window lags a steady change
+of ω by nothing, to first order), with more events and more iterations than live tracking
+affords. Per output time (``t0 + k / rate_hz`` within the recording, or its middle when the
+recording is shorter than one period):
+
+1. the window: at least ``min_events`` events and long enough that the neighbouring estimate
+   moves edges by ``target_px`` pixels across it, within ``min_ms`` and ``max_ms``;
+2. its events (hot pixels dropped, thinned evenly to ``max_events``) as rays, warped to ``t``;
+3. BFGS to convergence at the two finest pyramid levels from the previous estimate, and the
+   global search (:func:`spikegyro.cmax.search.search`) at the first estimate, every
+   ``search_every_s`` and wherever the contrast gain collapses;
+4. the same confidence as live estimates (``ill_posed`` bits 1, 2 and 4).
+
+:func:`estimate_offline` is the function over events in memory; :class:`OfflineCMax` wraps it
+in the estimator interface so that ``spikegyro predict --method cmax --offline`` writes, scores
+and plots it like the live engine (it answers everything at ``finish``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from spikegyro.cmax.confidence import not_one_rotation
+from spikegyro.cmax.config import CMaxConfig, Progress
+from spikegyro.cmax.files import camera_for_file
+from spikegyro.cmax.problem import Intrinsics, Problem, default_camera, ray_table
+from spikegyro.cmax.search import Refined, search
+from spikegyro.cmax.windows import hot_pixel_mask, pixel_speed, rms_radius
+from spikegyro.events.calib import Calibration
+from spikegyro.events.core import EventArray
+from spikegyro.events.windows import BIN_US
+from spikegyro.stream.estimator import (
+    ILL_FEW_EVENTS,
+    ILL_LITTLE_MOTION,
+    ILL_NOT_ONE_ROTATION,
+    Estimates,
+)
+
+
+@dataclass(frozen=True)
+class OfflineConfig:
+    """Settings of the offline engine (see the module).
+
+    Attributes:
+        rate_hz: estimates per second of event time.
+        min_events: a window holds at least this many events (where the recording has them).
+        target_px: ... and is long enough that ω moves edges this far across it, px.
+        min_ms, max_ms: bounds of the window's length, ms.
+        search_every_s: the global search runs at the first estimate and then every this many
+            seconds of event time (and wherever the gain falls below half its recent best).
+        base: the one-window settings (blur, pyramid, grid, iterations, events, one-rotation
+            test); ``max_events`` and ``iterations`` default higher than live tracking's.
+    """
+
+    rate_hz: float = 100.0
+    min_events: int = 10_000
+    target_px: float = 8.0
+    min_ms: float = 4.0
+    max_ms: float = 200.0
+    search_every_s: float = 0.1
+    base: CMaxConfig = field(default_factory=lambda: CMaxConfig(max_events=30_000, iterations=30))
+
+
+def offline_times(t_first_us: int, t_last_us: int, t0_us: int, rate_hz: float) -> np.ndarray:
+    """Output times (µs, int64) ``t0 + k / rate`` (k >= 1) within ``[t_first, t_last]``; the
+    middle of the span when none falls there."""
+    period = 1e6 / rate_hz
+    k = np.arange(1, int((t_last_us - t0_us) / period) + 2)
+    t = np.rint(t0_us + k * period).astype(np.int64)
+    t = t[(t >= t_first_us) & (t <= t_last_us)]
+    return t if len(t) else np.array([(t_first_us + t_last_us) // 2], np.int64)
+
+
+@dataclass
+class _Rays:
+    """All usable events of a recording as rays (dithered within their pixel), with times."""
+
+    t: np.ndarray
+    bx: np.ndarray
+    by: np.ndarray
+
+
+def _rays(events: EventArray, camera: Intrinsics, config: CMaxConfig) -> _Rays:
+    """Rays of ``events``, hot pixels (over the whole recording) and undefined rays dropped;
+    dithered as in the live engine, so that ω = 0 gets no spurious peak."""
+    keep = hot_pixel_mask(events.x, events.y, events.width, events.height, config.hot_pixel_factor)
+    key = camera if hasattr(camera, "pixel_rays") else (camera.fx, camera.fy, camera.cx, camera.cy)
+    xs, ys = ray_table(key, events.width, events.height)
+    ix, iy = events.x.astype(np.intp), events.y.astype(np.intp)
+    bx, by = xs[iy, ix], ys[iy, ix]
+    keep &= np.isfinite(bx) & np.isfinite(by)
+    jitter = np.random.default_rng(config.seed + 1).random((int(keep.sum()), 2)) - 0.5
+    return _Rays(
+        events.t[keep].astype(np.int64),
+        bx[keep] + jitter[:, 0] / camera.fx,
+        by[keep] + jitter[:, 1] / camera.fy,
+    )
+
+
+def _window(rays: _Rays, t_us: int, speed: float | None, config: OfflineConfig) -> np.ndarray:
+    """Indices of the (evenly thinned) events of the window centred on ``t_us``."""
+    t, n = rays.t, len(rays.t)
+    mid = int(np.searchsorted(t, t_us))
+    half = config.min_events // 2
+    lo, hi = max(mid - half, 0), min(mid + half, n - 1)
+    by_count = max(t_us - t[lo], t[hi] - t_us) if n else 0.0
+    by_motion = 0.5e6 * config.target_px / speed if speed else 0.0
+    half_us = min(max(by_count, by_motion, 500.0 * config.min_ms), 500.0 * config.max_ms)
+    a = int(np.searchsorted(t, t_us - half_us, side="left"))
+    b = int(np.searchsorted(t, t_us + half_us, side="right"))
+    index = np.arange(a, b)
+    if len(index) > config.base.max_events:
+        index = index[np.linspace(0, len(index) - 1, config.base.max_events).astype(np.intp)]
+    return index
+
+
+class _Engine:
+    """The state of one pass: the previous estimate, its search time and recent gains."""
+
+    def __init__(
+        self, rays: _Rays, camera: Intrinsics, sensor: tuple[int, int], cfg: OfflineConfig
+    ) -> None:
+        self.rays, self.config, self.sensor = rays, cfg, sensor
+        self.intrinsics = np.array([camera.fx, camera.fy, camera.cx, camera.cy])
+        self.radius = rms_radius(*sensor, camera.cx, camera.cy)
+        self.omega: np.ndarray | None = None
+        self.searched_us: int | None = None
+        self.best_gain = 0.0
+        self.rng = np.random.default_rng(cfg.base.seed)
+
+    def speed(self) -> float | None:
+        """Image speed (px/s) of the previous estimate."""
+        if self.omega is None:
+            return None
+        return pixel_speed(self.omega, float(self.intrinsics[0]), self.radius)
+
+    def estimate(self, t_us: int) -> tuple | None:
+        """One estimate at ``t_us`` (a row of ``Estimates``), or None without events."""
+        index = _window(self.rays, t_us, self.speed(), self.config)
+        base = self.config.base
+        if len(index) < max(base.min_events, 2):
+            return None
+        t = self.rays.t[index]
+        dt = (t_us - t) * 1e-6
+        problem = Problem(
+            self.rays.bx[index], self.rays.by[index], dt, np.ones(len(index)), self.intrinsics,
+            *self.sensor,
+        )  # fmt: skip
+        found = self._maximize(problem, t_us)
+        flat = problem.contrast(np.zeros(3), 1, base.sigma_px)[0]
+        gain = found.contrast / flat if flat > 0 else math.nan
+        if math.isfinite(gain):
+            self.best_gain = max(gain - 1.0, self.best_gain * 0.9)
+        span = float(t[-1] - t[0])
+        return (
+            t_us,
+            found.omega,
+            len(index),
+            span,
+            float(dt.mean()) * 1e6,
+            gain,
+            self._flags(problem, found.omega, span),
+        )
+
+    def _maximize(self, problem: Problem, t_us: int) -> Refined:
+        """Search where due, else refine from the previous estimate to convergence."""
+        base, every = self.config.base, self.config.search_every_s * 1e6
+        due = self.omega is None or self.searched_us is None or t_us - self.searched_us >= every
+        if not due:
+            tracked = search(problem, base, self.omega, grid=False, rng=self.rng)
+            flat = problem.contrast(np.zeros(3), 1, base.sigma_px)[0]
+            share = (tracked.contrast / flat - 1.0) / self.best_gain if self.best_gain else 1.0
+            if share >= 0.5:
+                self.omega = tracked.omega
+                return tracked
+        found = search(problem, base, self.omega, grid=True, rng=self.rng)
+        self.searched_us, self.omega = t_us, found.omega
+        return found
+
+    def _flags(self, problem: Problem, omega: np.ndarray, span_us: float) -> int:
+        """``ill_posed`` bits 1, 2 and 4 of estimate ω of ``problem``."""
+        config, flags = self.config, 0
+        if len(problem) < config.min_events and len(problem) < config.base.max_events:
+            flags |= ILL_FEW_EVENTS
+        moved = pixel_speed(omega, float(self.intrinsics[0]), self.radius) * span_us * 1e-6
+        if moved < config.base.min_motion_px:
+            flags |= ILL_LITTLE_MOTION
+        if not_one_rotation(problem, omega, moved, config.base, self.rng):
+            flags |= ILL_NOT_ONE_ROTATION
+        return flags
+
+
+def estimate_offline(
+    events: EventArray,
+    camera: Intrinsics | None = None,
+    config: OfflineConfig | None = None,
+    t0_us: int | None = None,
+    progress: Progress | None = None,
+) -> Estimates:
+    """Offline estimates over a recording in memory, one per ``1 / config.rate_hz`` s.
+
+    Args:
+        events: the recording's events, on the sensor's pixels, time-ordered.
+        camera: the sensor's intrinsics or ``Calibration``; default the simulator's pinhole.
+        config: settings (:class:`OfflineConfig`).
+        t0_us: the output clock's origin (default: the first event's whole millisecond).
+        progress: optional ``progress(done, total)`` after each estimate.
+
+    Returns:
+        ``Estimates`` stamped at the times they stand for (the windows' centres; ``delay_us``
+        is how far the events' mean time lies before it, about 0).
+    """
+    config = config or OfflineConfig()
+    if len(events) < 2:
+        return Estimates.empty()
+    camera = camera or default_camera(events.width, events.height)
+    t0 = int(events.t[0]) // BIN_US * BIN_US if t0_us is None else int(t0_us)
+    times = offline_times(int(events.t[0]), int(events.t[-1]), t0, config.rate_hz)
+    engine = _Engine(_rays(events, camera, config.base), camera, events.sensor_size, config)
+    rows = []
+    for k, t_us in enumerate(times.tolist()):
+        row = engine.estimate(t_us)
+        if row is not None:
+            rows.append(row)
+        if progress is not None:
+            progress(k + 1, len(times))
+    if not rows:
+        return Estimates.empty()
+    return Estimates(*(np.array(c) for c in zip(*rows, strict=True)))
+
+
+class OfflineCMax:
+    """:func:`estimate_offline` behind the estimator interface (``update`` keeps the events,
+    ``finish`` answers every estimate), for ``predict --method cmax --offline``."""
+
+    confidence = True
+
+    def __init__(self, camera: Intrinsics | None = None, config: OfflineConfig | None = None):
+        self.camera, self.config = camera, config or OfflineConfig()
+        self.label = f"contrast maximization, offline (centred windows), {self.config.rate_hz:g} Hz"
+        self.reset()
+
+    def reset(self, t0_us: int | None = None) -> None:
+        """Forget the events; the output clock starts at ``t0_us``."""
+        self.t0_us, self._parts, self._found = t0_us, [], 0
+
+    def update(self, events: EventArray) -> Estimates:
+        """Keep a batch; offline estimates come at :meth:`finish`."""
+        if len(events):
+            self._parts.append(events)
+        return Estimates.empty()
+
+    def finish(self, t_end_us: int) -> Estimates:
+        """All estimates over the events kept, up to ``t_end_us``."""
+        if not self._parts:
+            return Estimates.empty()
+        events = EventArray.concatenate(self._parts)
+        events = events.slice_time(int(events.t[0]), int(t_end_us) + 1)
+        found = estimate_offline(events, self.camera, self.config, self.t0_us)
+        self._found, self._seen = len(found), len(events)
+        return found
+
+    def why_none(self) -> str:
+        """Why there was no estimate (empty when there was one)."""
+        if self._found or not self._parts:
+            return ""
+        need = max(self.config.base.min_events, 2)
+        return f"no window holds the {need:,} events (hot pixels dropped) an estimate needs"
+
+
+def with_rate(config: OfflineConfig | None, rate_hz: float | None) -> OfflineConfig:
+    """``config`` (None: the default) at ``rate_hz`` estimates per second (None: its own)."""
+    config = config or OfflineConfig()
+    return config if rate_hz is None else replace(config, rate_hz=float(rate_hz))
+
+
+def offline_estimator_for_file(
+    path: str | os.PathLike,
+    calibration: Calibration | None = None,
+    sensor: tuple[int, int] | None = None,
+    rate_hz: float | None = None,
+) -> tuple[OfflineCMax, str]:
+    """An :class:`OfflineCMax` for an event file (intrinsics by
+    :func:`~spikegyro.cmax.files.camera_for_file`) and the line saying which intrinsics."""
+    camera, note = camera_for_file(path, calibration, sensor)
+    return OfflineCMax(camera, with_rate(None, rate_hz)), note

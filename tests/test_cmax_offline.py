@@ -1,0 +1,60 @@
+"""The offline engine: estimates at their own times from centred windows, one for a recording
+shorter than the output period, and `predict --method cmax --offline` end to end."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from spikegyro.cli import app
+from spikegyro.cmax.offline import estimate_offline, offline_times
+from spikegyro.events.calib import PinholeCamera
+from tests.test_cmax import HEIGHT, WIDTH, F, assert_close_omega, point_track_events
+
+CAMERA = PinholeCamera(WIDTH, HEIGHT, F, F, WIDTH / 2, HEIGHT / 2)
+
+
+def test_offline_times_are_the_output_clock_within_the_span_or_its_middle():
+    assert offline_times(0, 35_000, 0, 100.0).tolist() == [10_000, 20_000, 30_000]
+    assert offline_times(1_000, 6_500, 0, 100.0).tolist() == [3_750]
+
+
+@pytest.mark.parametrize("omega_dps", [(0.0, 60.0, 0.0), (20.0, -30.0, 80.0)])
+def test_offline_estimates_stand_for_their_own_time(omega_dps):
+    omega = np.radians(omega_dps)
+    events = point_track_events(omega, seed=2, duration_s=0.3, points=3000)
+    est = estimate_offline(events, CAMERA)
+    assert len(est) == 29 and (np.diff(est.t_us) == 10_000).all()
+    inside = (est.t_us > 80_000) & (est.t_us < 220_000)  # windows not cut by the ends
+    # Centred windows: the events' mean time within a tenth of the window of the estimate's
+    # time (a causal window's lies half a window before it).
+    assert (np.abs(est.delay_us[inside]) < 0.1 * est.window_us[inside]).all()
+    for w in est.omega:
+        assert_close_omega(w, omega)
+
+
+def test_a_recording_shorter_than_the_period_gets_one_offline_estimate():
+    omega = np.radians([0.0, 0.0, 400.0])
+    events = point_track_events(omega, seed=11, duration_s=0.006, points=3000)
+    est = estimate_offline(events, CAMERA)
+    assert len(est) == 1
+    assert_close_omega(est.omega[0], omega)
+
+
+def test_predict_offline_and_its_bad_combinations(tmp_path):
+    from spikegyro.events.core import Recording
+    from spikegyro.events.io import write_recording
+
+    path = tmp_path / "pan.h5"
+    events = point_track_events(np.radians([0.0, 60.0, 0.0]), seed=4, duration_s=0.1, points=3000)
+    write_recording(path, Recording(events, None, {"fx": F, "fy": F, "cx": 120.0, "cy": 90.0}))
+    out = tmp_path / "off.csv"
+    done = CliRunner().invoke(
+        app, ["predict", str(path), "--method", "cmax", "--offline", "--out", str(out)]
+    )
+    assert done.exit_code == 0, done.output
+    assert "offline" in done.output and out.exists()
+    for extra in (["--method", "snn"], ["--method", "cmax", "--window-ms", "20"]):
+        bad = CliRunner().invoke(app, ["predict", str(path), *extra, "--offline", "-o", "x.csv"])
+        assert bad.exit_code != 0 and "--offline" in str(bad.exception)
