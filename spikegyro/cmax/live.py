@@ -244,7 +244,9 @@ class CMaxEstimator:
         span = float(t_us - buf.t[index[0]])
         return index, span, i1 - i0
 
-    def _flags(self, problem: Problem, omega: np.ndarray, count: int, span_us: float) -> int:
+    def _flags(
+        self, problem: Problem, omega: np.ndarray, count: int, span_us: float, t_us: int
+    ) -> int:
         """The ``ill_posed`` bits of estimate ω of ``problem``: too few events (``count``,
         hot pixels included), too little motion over ``span_us``, not one rotation."""
         config, flags = self.config, 0
@@ -254,7 +256,6 @@ class CMaxEstimator:
         if moved < config.min_motion_px:
             flags |= ILL_LITTLE_MOTION
         test = config.one_rotation
-        t_us = self._last_t or 0
         if test is not None and t_us - self._tested_us >= 1000 * test.every_ms:
             self._not_one = not_one_rotation(problem, omega, moved, config, self._rng)
             self._tested_us = t_us
@@ -314,7 +315,7 @@ class CMaxEstimator:
         self._hessian = found.inv_hessian
         flat = problem.contrast(np.zeros(3), 1, config.sigma_px)[0]
         gain = found.contrast / flat if flat > 0 else math.nan
-        flags = self._flags(problem, omega, count, span)
+        flags = self._flags(problem, omega, count, span, t_us)
         self._update_doubt(gain, flags)
         delay = float(dt.mean()) * 1e6
         return t_us, omega, count, span, delay, gain, flags
