@@ -1,5 +1,5 @@
-"""Contrast maximization on an event file: the intrinsics to use, a live estimator for it, one
-estimate from all of its events."""
+"""Contrast maximization on an event file or a live stream: the intrinsics to use, a live
+estimator for it, one estimate from all of a file's events."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 
 from spikegyro.cmax.config import CMaxConfig
 from spikegyro.cmax.live import CMaxEstimator
-from spikegyro.cmax.problem import Intrinsics, camera_from_attrs
+from spikegyro.cmax.problem import Intrinsics, camera_from_attrs, default_camera
 from spikegyro.cmax.search import estimate_window
 from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration
@@ -33,11 +33,7 @@ def camera_for_file(
         raise InputError(f"{path}: the file holds no events.")
     width, height = first.sensor_size
     if calibration is not None:
-        kind = "pinhole" if calibration.is_pinhole else "with lens distortion"
-        return calibration, (
-            f"intrinsics fx {calibration.fx:g}, fy {calibration.fy:g}, cx {calibration.cx:g}, "
-            f"cy {calibration.cy:g} px ({kind}), as given"
-        )
+        return calibration, _given(calibration)
     attrs = read_hdf5_attrs(path) if detect_format(path) == "hdf5" else {}
     camera = camera_from_attrs(attrs, width, height)
     if "fx" in attrs:
@@ -45,9 +41,23 @@ def camera_for_file(
             f"intrinsics from the file: fx {camera.fx:g}, fy {camera.fy:g}, cx {camera.cx:g}, "
             f"cy {camera.cy:g} px"
         )
-    return camera, (
-        f"warning: {Path(path).name} brings no calibration; assuming a {width}x{height} pinhole "
-        f"with fx = fy = {camera.fx:g} px and the principal point at ({camera.cx:g}, "
+    return camera, _assumed(Path(path).name, camera)
+
+
+def _given(calibration: Calibration) -> str:
+    """The line saying that the user's calibration is used."""
+    kind = "pinhole" if calibration.is_pinhole else "with lens distortion"
+    return (
+        f"intrinsics fx {calibration.fx:g}, fy {calibration.fy:g}, cx {calibration.cx:g}, "
+        f"cy {calibration.cy:g} px ({kind}), as given"
+    )
+
+
+def _assumed(name: str, camera: Intrinsics) -> str:
+    """The warning that ``name`` brings no calibration and ``camera`` is assumed."""
+    return (
+        f"warning: {name} brings no calibration; assuming a {camera.width}x{camera.height} "
+        f"pinhole with fx = fy = {camera.fx:g} px and the principal point at ({camera.cx:g}, "
         f"{camera.cy:g}), no distortion. Angular speeds scale with the focal length: pass "
         "--intrinsics fx fy cx cy or --calib FILE."
     )
@@ -64,13 +74,37 @@ def cmax_estimator_for_file(
     """A :class:`CMaxEstimator` for an event file (intrinsics by :func:`camera_for_file`),
     with ``rate_hz`` (None: the config's) and a fixed ``window_ms`` (None: adaptive), and the
     line saying which intrinsics it uses."""
+    camera, note = camera_for_file(path, calibration, sensor)
+    return CMaxEstimator(camera, _with_options(config, rate_hz, window_ms)), note
+
+
+def cmax_estimator_for_stream(
+    name: str,
+    sensor: tuple[int, int],
+    calibration: Calibration | None = None,
+    rate_hz: float | None = None,
+    window_ms: float | None = None,
+) -> tuple[CMaxEstimator, str]:
+    """A :class:`CMaxEstimator` for a live stream ``name`` of a ``sensor`` (width, height) px,
+    as :func:`cmax_estimator_for_file`: the calibration given, else the default pinhole (with a
+    warning line)."""
+    config = _with_options(None, rate_hz, window_ms)
+    if calibration is not None:
+        return CMaxEstimator(calibration, config), _given(calibration)
+    camera = default_camera(*sensor)
+    return CMaxEstimator(camera, config), _assumed(name, camera)
+
+
+def _with_options(
+    config: CMaxConfig | None, rate_hz: float | None, window_ms: float | None
+) -> CMaxConfig:
+    """``config`` (None: the default) with ``--rate-hz`` and a fixed ``--window-ms`` if given."""
     config = config or CMaxConfig()
     if rate_hz is not None:
         config = replace(config, rate_hz=float(rate_hz))
     if window_ms is not None:
         config = replace(config, window=replace(config.window, fixed_ms=float(window_ms)))
-    camera, note = camera_for_file(path, calibration, sensor)
-    return CMaxEstimator(camera, config), note
+    return config
 
 
 @dataclass(frozen=True)

@@ -10,24 +10,32 @@ from rich.console import Console
 
 from spikegyro import options
 from spikegyro.errors import InputError
+from spikegyro.events.io import EVENT_FILE_HELP
+from spikegyro.events.sources import URL_HELP, LiveSource, is_live, open_source
 from spikegyro.pretrained import checkpoint_help
 from spikegyro.stream.console import (
-    EVENTS,
     PREDICTIONS_OUT,
+    StreamInputs,
     print_lines,
     stream_inputs,
     stream_with_progress,
 )
+from spikegyro.stream.estimator import GyroEstimator
+from spikegyro.stream.live import check_live_options, closing_on_error, run_live
 from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_engine
 from spikegyro.stream.predict import SNN_REAL_DATA_NOTE, SNNEstimator, is_simulated, summary_lines
-from spikegyro.stream.writer import check_prediction_path
+from spikegyro.stream.writer import STDOUT, check_prediction_path
 
+SOURCE = typer.Argument(
+    ..., help=f"{EVENT_FILE_HELP} Or a live source: {URL_HELP} (see docs/live.md)."
+)
 METHOD = typer.Option(
-    "snn",
+    None,
     "--method",
-    help="'snn': the paper's spiking network (default; not yet accurate on real cameras). "
-    "'cmax': contrast maximization, causal windows adapted to the event rate and motion, "
-    "with a confidence per estimate: use it for real cameras.",
+    help="'snn': the paper's spiking network (default for files; not yet accurate on real "
+    "cameras). 'cmax': contrast maximization, causal windows adapted to the event rate and "
+    "motion, with a confidence per estimate: use it for real cameras (default for live "
+    "sources).",
 )
 RATE_HZ = typer.Option(
     None,
@@ -93,8 +101,8 @@ BATCH = typer.Option(
 
 
 def predict(
-    events: Path = EVENTS,
-    method: str = METHOD,
+    events: str = SOURCE,
+    method: str | None = METHOD,
     rate_hz: float = RATE_HZ,
     window_ms: float = WINDOW_MS,
     offline: bool = OFFLINE,
@@ -117,17 +125,32 @@ def predict(
     """Estimate ω = (ω_x, ω_y, ω_z) in rad/s, streaming, with a real-time-factor bar.
 
     For real cameras use --method cmax (contrast maximization: 100 causal estimates per second,
-    faster than real time on one core); the SNN (the default) is the paper's network and is
-    not yet accurate on real recordings. Each output row is its own estimate, stamped at the
-    time up to which it used events.
+    faster than real time on one core); the SNN (the default for files) is the paper's network
+    and is not yet accurate on real recordings. Each output row is its own estimate, stamped at
+    the time up to which it used events. A live source (dv://HOST:PORT, camera://) runs until
+    the stream ends, --end or Ctrl-C, writing each estimate as it completes (--out - for CSV
+    on standard output).
     """
-    _check_method(method, window_ms, offline)
+    live = is_live(events)
+    method = _check_method(method, window_ms, live, offline)
     check_prediction_path(out)
+    if live:
+        check_live_options(events, gyro, width, height)
     inputs = stream_inputs(
         events, calib, intrinsics, gyro, imu_to_camera, width, height, start, end
     )
     console = Console(stderr=True)
     print_lines(console, inputs.notes)
+    if live:
+        source = open_source(events)
+        with closing_on_error(source):
+            engine_options = (device, threads, segment_ms, context_ms, batch)
+            estimator = _estimator(
+                method, source, inputs, rate_hz, window_ms, checkpoint, engine_options, console
+            )
+        run_live(console, source, estimator, out, start, end, inputs.gyro_rotation, method)
+        return
+    events = Path(events)
     if method == "cmax":
         # The CLI layer wires the estimators together; the stream package needs no baseline.
         from spikegyro.cmax.files import cmax_estimator_for_file
@@ -148,7 +171,7 @@ def predict(
         estimator = SNNEstimator(engine, input_spec, inputs.calibration, rate_hz, str(events))
     result = stream_with_progress(
         console, "predict", events, estimator, out, sensor=inputs.sensor, start_s=start,
-        end_s=end, gyro_path=gyro, gyro_rotation=inputs.gyro_rotation,
+        end_s=end, gyro_path=gyro, gyro_rotation=inputs.gyro_rotation, plot=str(out) != STDOUT,
     )  # fmt: skip
     snn = method == "snn"
     print_lines(console, summary_lines(result, out, warm_up=snn))
@@ -156,14 +179,42 @@ def predict(
         console.print(SNN_REAL_DATA_NOTE)
 
 
-def _check_method(method: str, window_ms: float | None, offline: bool = False) -> None:
-    """``--method`` is known, ``--window-ms`` goes with cmax only, and ``--offline`` with cmax
-    without ``--window-ms``."""
+def _check_method(
+    method: str | None, window_ms: float | None, live: bool, offline: bool = False
+) -> str:
+    """``--method`` is known (default: cmax for a live source, snn for a file), and
+    ``--window-ms`` goes with cmax only, ``--offline`` with cmax on a file without
+    ``--window-ms``; returns the method."""
+    method = method or ("cmax" if live else "snn")
     if method not in ("snn", "cmax"):
         raise InputError(f"--method {method}: choose 'snn' or 'cmax'.")
     if method == "snn" and window_ms is not None:
         raise InputError("--window-ms is for --method cmax; the SNN has no window.")
-    if offline and (method != "cmax" or window_ms is not None):
+    if offline and (method != "cmax" or live or window_ms is not None):
         raise InputError(
             "--offline is for --method cmax on a file, and sizes its own windows (no --window-ms)."
         )
+    return method
+
+
+def _estimator(
+    method: str,
+    source: LiveSource,
+    inputs: StreamInputs,
+    rate_hz: float | None,
+    window_ms: float | None,
+    checkpoint: Path | None,
+    engine_options: tuple,
+    console: Console,
+) -> GyroEstimator:
+    """The estimator for a live source (its sensor from the stream)."""
+    if method == "cmax":
+        from spikegyro.cmax.files import cmax_estimator_for_stream
+
+        estimator, note = cmax_estimator_for_stream(
+            source.name, source.sensor, inputs.calibration, rate_hz, window_ms
+        )
+        console.print(note)
+        return estimator
+    engine, payload = load_engine(checkpoint or DEFAULT_CHECKPOINT, *engine_options)
+    return SNNEstimator(engine, payload.get("input", {}), inputs.calibration, rate_hz, source.name)

@@ -17,7 +17,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from spikegyro.checks import sensor_option
 from spikegyro.events.calib import Calibration, resolve_calibration
-from spikegyro.events.imu import gyro_frame
+from spikegyro.events.imu import gyro_frame, imu_rotation
 from spikegyro.events.io import EVENT_FILE_HELP
 from spikegyro.stream.estimator import GyroEstimator
 from spikegyro.stream.predict import StreamResult, check_span, predict_stream, span_seconds
@@ -37,7 +37,8 @@ class StreamInputs:
         calibration: the sensor's calibration (``--calib``, ``--intrinsics`` or an ECD folder's
             own), or None.
         sensor: (width, height) px for files that do not say, or None.
-        gyro_rotation: R with ω_camera = R · ω_gyro, or None (the gyro is used as it is).
+        gyro_rotation: R with ω_camera = R · ω_gyro (``--imu-to-camera``, or the known rotation
+            of a camera file's IMU), or None (the gyro is used as it is).
         notes: lines to tell the user (the calibration file used, the gyro's frame).
     """
 
@@ -68,7 +69,10 @@ def stream_inputs(
     frame = gyro_frame(gyro, imu_to_camera) if gyro is not None else None
     if frame is not None and frame.message:
         notes.append(("warning: " if frame.warning else "") + frame.message)
-    rotation = None if frame is None else frame.rotation
+    if frame is not None:
+        rotation = frame.rotation
+    else:  # checked without a gyro too: a live camera's own IMU is rotated by it
+        rotation = imu_rotation(imu_to_camera) if imu_to_camera else None
     return StreamInputs(calibration, sensor, rotation, tuple(notes))
 
 

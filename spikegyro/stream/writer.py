@@ -13,6 +13,9 @@ contrast over that of ω = 0; near 1: no structure found) and ``ill_posed`` (bit
 events, 2 too little motion to tell from none); as CSV columns after the others, as HDF5
 datasets of those names.
 
+The path ``-`` writes the CSV to standard output instead, flushed after each block, for a
+program reading the estimates as they come.
+
 A CSV prediction file without confidence or gyro columns reads back with
 :func:`spikegyro.events.io.read_gyro`; any reads back with :func:`read_predictions`.
 """
@@ -20,6 +23,7 @@ A CSV prediction file without confidence or gyro columns reads back with
 from __future__ import annotations
 
 import os
+import sys
 from contextlib import ExitStack
 from pathlib import Path
 from types import TracebackType
@@ -37,8 +41,15 @@ CONFIDENCE_COLUMNS = ("events", "window_ms", "contrast_gain", "ill_posed")
 _H5_SUFFIXES = (".h5", ".hdf5")
 
 
+STDOUT = "-"
+"""The ``--out`` that writes CSV to standard output."""
+
+
 def check_prediction_path(path: str | os.PathLike) -> Path:
-    """Raise :class:`InputError` unless ``path`` has a supported extension (.csv/.txt/.h5/.hdf5)."""
+    """Raise :class:`InputError` unless ``path`` has a supported extension (.csv/.txt/.h5/.hdf5)
+    or is ``-`` (standard output)."""
+    if str(path) == STDOUT:
+        return Path(STDOUT)
     return check_output_file(path, "--out", _CSV_SUFFIXES + _H5_SUFFIXES)
 
 
@@ -63,6 +74,10 @@ class PredictionWriter:
         self._h5: h5py.File | None = None
 
     def __enter__(self) -> PredictionWriter:
+        if str(self.path) == STDOUT:
+            self._csv = sys.stdout
+            self._write_header()
+            return self
         tmp = self._stack.enter_context(atomic_path(self.path))
         if self.path.suffix.lower() in _H5_SUFFIXES:
             self._h5 = self._stack.enter_context(h5py.File(tmp, "w"))
@@ -81,10 +96,14 @@ class PredictionWriter:
                 )
         else:
             self._csv = self._stack.enter_context(open(tmp, "w", newline=""))
-            header = "t,wx,wy,wz" + (",gyro_wx,gyro_wy,gyro_wz,err" if self.with_gyro else "")
-            header += "".join(f",{c}" for c in CONFIDENCE_COLUMNS) if self.with_confidence else ""
-            self._csv.write(header + "\n")
+            self._write_header()
         return self
+
+    def _write_header(self) -> None:
+        header = "t,wx,wy,wz" + (",gyro_wx,gyro_wy,gyro_wz,err" if self.with_gyro else "")
+        header += "".join(f",{c}" for c in CONFIDENCE_COLUMNS) if self.with_confidence else ""
+        self._csv.write(header + "\n")
+        self._csv.flush()
 
     def append(
         self,
@@ -129,6 +148,7 @@ class PredictionWriter:
                 columns += [extra[name][:, None] for name in CONFIDENCE_COLUMNS]
                 fmt += ["%d", "%.3f", "%.5f", "%d"]
             np.savetxt(self._csv, np.hstack(columns), fmt=fmt, delimiter=",")
+            self._csv.flush()
         self.rows += len(t_us)
 
     def __exit__(
