@@ -257,3 +257,26 @@ def test_written_files_get_default_permissions(tmp_path: Path) -> None:
     finally:
         os.umask(umask)
     assert path.stat().st_mode & 0o777 == 0o644
+
+
+def test_a_time_span_read_from_hdf5_equals_the_slice_of_the_whole_file(tmp_path: Path) -> None:
+    """Spans starting and ending anywhere: before the first event, on the index's own
+    timestamps (every 4096th event), between two equal timestamps, past the last event."""
+    from spikegyro.events.io import HDF5_INDEX_STRIDE, index_hdf5, read_hdf5_span
+
+    rec = make_recording(n=3 * HDF5_INDEX_STRIDE + 77, seed=4)
+    rec.events.t[100:110] = rec.events.t[100]  # a run of equal timestamps
+    path = tmp_path / "seq.h5"
+    write_recording(path, rec)
+    whole = read_recording(path).events
+    index = index_hdf5(path)
+    assert index.count == len(whole) and index.sensor == (240, 180)
+    t = whole.t
+    marks = [t[0] - 5, t[0], t[105], t[HDF5_INDEX_STRIDE], t[HDF5_INDEX_STRIDE] + 1,
+             t[2 * HDF5_INDEX_STRIDE] - 1, t[-1], t[-1] + 1]  # fmt: skip
+    rng = np.random.default_rng(0)
+    spans = [(a, b) for a in marks for b in marks if a <= b]
+    spans += [tuple(sorted(rng.integers(t[0], t[-1], 2))) for _ in range(20)]
+    for a, b in spans:
+        assert_same_events(read_hdf5_span(path, int(a), int(b), index), whole.slice_time(a, b))
+    assert_same_events(read_hdf5_span(path, int(t[0]), int(t[-1]) + 1), whole)

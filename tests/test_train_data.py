@@ -176,3 +176,22 @@ def test_training_samples_are_a_pure_function_of_seed_and_index(dataset):
         torch.testing.assert_close(a[i][0], b[i][0])
         torch.testing.assert_close(a[i][1], b[i][1])
     assert not torch.equal(a[0][1], TrainingSamples(source, spec, seed=4)[0][1])
+
+
+def test_a_file_source_reads_the_window_that_the_whole_sequence_gives(dataset):
+    """Training windows come from partial reads of their file: the same windows (events,
+    labels) as cutting them out of the whole sequence with the same random draws."""
+    from spikegyro.events.io import read_recording
+    from spikegyro.train.data import random_window
+
+    source = FileSource.from_split(dataset, "train", 50)
+    for index in range(12):
+        window = source.draw(np.random.default_rng([5, index]), index)
+        rng = np.random.default_rng([5, index])
+        path = source.files[int(rng.integers(len(source.files)))]
+        whole = random_window(read_recording(path), 50, rng, source=path, index=index)
+        assert (window.source, window.t_start_us) == (whole.source, whole.t_start_us)
+        for name in ("x", "y", "t", "p"):
+            np.testing.assert_array_equal(getattr(window.events, name), getattr(whole.events, name))
+        np.testing.assert_array_equal(window.omega, whole.omega)
+        np.testing.assert_array_equal(window.omega_start, whole.omega_start)

@@ -33,7 +33,7 @@ import tempfile
 import zipfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -356,12 +356,67 @@ def _read_hdf5(path: Path, sensor: tuple[int, int] | None) -> Recording:
         events = EventArray.from_arrays(
             xy[:, 0], xy[:, 1], f["ev_ts"][()], f["ev_pol"][()], width, height, source=str(path)
         )
-        gyro = None
-        if "ang_xyz" in f or "ang_ts" in f:
-            _require_keys(f, ("ang_xyz", "ang_ts"), path)
-            gyro = GyroTrace.from_arrays(f["ang_ts"][()], f["ang_xyz"][()], source=str(path))
+        gyro = _hdf5_gyro(f, path)
         attrs = _h5_attrs(f)
     return Recording(events=events, gyro=gyro, attrs=attrs)
+
+
+def _hdf5_gyro(f: h5py.File, path: Path) -> GyroTrace | None:
+    if "ang_xyz" not in f and "ang_ts" not in f:
+        return None
+    _require_keys(f, ("ang_xyz", "ang_ts"), path)
+    return GyroTrace.from_arrays(f["ang_ts"][()], f["ang_xyz"][()], source=str(path))
+
+
+HDF5_INDEX_STRIDE = 4096
+""":class:`Hdf5Index` keeps the timestamp of every this many events (16 kB per million)."""
+
+
+@dataclass(frozen=True)
+class Hdf5Index:
+    """What reading time spans of an HDF5 event file needs, without its events: every
+    :data:`HDF5_INDEX_STRIDE`-th timestamp (µs), the event count, the sensor (width, height),
+    the gyro or ground truth and the attributes (see :func:`read_hdf5_span`)."""
+
+    coarse_t: np.ndarray
+    count: int
+    sensor: tuple[int, int]
+    gyro: GyroTrace | None
+    attrs: dict[str, Any]
+
+
+@reader_boundary
+def index_hdf5(path: str | os.PathLike) -> Hdf5Index:
+    """The :class:`Hdf5Index` of an HDF5 event file (reads the gyro and 1/4096 of the times)."""
+    path = Path(path)
+    with open_hdf5(path) as f:
+        _require_keys(f, ("ev_xy", "ev_ts", "ev_pol"), path)
+        ts = f["ev_ts"]
+        coarse = ts[::HDF5_INDEX_STRIDE] if ts.shape[0] else np.zeros(0, np.int64)
+        return Hdf5Index(coarse, int(ts.shape[0]), _hdf5_sensor(f, None), _hdf5_gyro(f, path),
+                         _h5_attrs(f))  # fmt: skip
+
+
+@reader_boundary
+def read_hdf5_span(
+    path: str | os.PathLike, t_start_us: int, t_end_us: int, index: Hdf5Index | None = None
+) -> EventArray:
+    """The events with ``t_start_us <= t < t_end_us`` of an HDF5 event file, reading that part
+    of it and at most :data:`HDF5_INDEX_STRIDE` timestamps either side (a 100 ms training window
+    of a 500 ms sequence: about a fifth of the file). ``index``: the file's, if at hand."""
+    index = index_hdf5(path) if index is None else index
+    stride = HDF5_INDEX_STRIDE
+    # coarse_t[k] is the time of event k * stride, so the span's first event lies after event
+    # (k - 1) * stride, k the first coarse time >= t_start, and its end at or before k' * stride
+    lo = max(0, (int(np.searchsorted(index.coarse_t, t_start_us)) - 1) * stride)
+    hi = min(index.count, int(np.searchsorted(index.coarse_t, t_end_us)) * stride)
+    with open_hdf5(path) as f:
+        ts = f["ev_ts"][lo:hi]
+        first, end = np.searchsorted(ts, [t_start_us, t_end_us])
+        xy = f["ev_xy"][lo + first : lo + end]
+        pol = f["ev_pol"][lo + first : lo + end]
+    return EventArray.from_arrays(xy[:, 0], xy[:, 1], ts[first:end], pol, *index.sensor,
+                                  source=str(path))  # fmt: skip
 
 
 def _h5_attrs(f: h5py.File) -> dict[str, Any]:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import functools
 import hashlib
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol, cast
 
@@ -39,7 +39,7 @@ from torch.utils.data import Dataset
 from spikegyro.errors import InputError
 from spikegyro.events import binning_torch
 from spikegyro.events.core import EventArray, Recording
-from spikegyro.events.io import read_recording
+from spikegyro.events.io import Hdf5Index, index_hdf5, read_hdf5_span, read_recording
 from spikegyro.events.representations import accumulated_frames, spike_tensor, voxel_grid
 
 BIN_US = 1000
@@ -200,16 +200,21 @@ def sequence_windows(rec: Recording, window_ms: int, source: str = "") -> list[W
     ]
 
 
-def random_window(rec: Recording, window_ms: int, rng: np.random.Generator, **kw: Any) -> Window:
-    """A window starting at a uniformly random whole millisecond inside the sequence."""
-    t0, t1 = sequence_span_us(rec, kw.get("source", ""))
+def random_start(rec: Recording, window_ms: int, rng: np.random.Generator, source: str) -> int:
+    """Start (µs) of a window at a uniformly random whole millisecond inside the sequence."""
+    t0, t1 = sequence_span_us(rec, source)
     slots = (t1 - t0) // BIN_US - window_ms
     if slots < 0:
         raise InputError(
-            f"{kw.get('source', 'sequence')}: {(t1 - t0) / 1000:.0f} ms long, shorter than the "
+            f"{source or 'sequence'}: {(t1 - t0) / 1000:.0f} ms long, shorter than the "
             f"{window_ms} ms window."
         )
-    start = t0 + int(rng.integers(0, slots + 1)) * BIN_US
+    return t0 + int(rng.integers(0, slots + 1)) * BIN_US
+
+
+def random_window(rec: Recording, window_ms: int, rng: np.random.Generator, **kw: Any) -> Window:
+    """A window starting at a uniformly random whole millisecond inside the sequence."""
+    start = random_start(rec, window_ms, rng, kw.get("source", ""))
     return window_at(rec, start, window_ms, **kw)
 
 
@@ -227,10 +232,11 @@ def split_files(data_dir: str | Path, split: str) -> list[Path]:
     return files
 
 
-@functools.lru_cache(maxsize=128)
-def load_sequence(path: str) -> Recording:
-    """Read a sequence file, memoised per process (DataLoader workers each keep their own)."""
-    return read_recording(path)
+@functools.cache
+def sequence_index(path: str) -> Hdf5Index:
+    """A sequence file's time index and ground truth, memoised per process (DataLoader workers
+    each keep their own: about 10 kB per 500 ms sequence)."""
+    return index_hdf5(path)
 
 
 def fixed_windows(data_dir: str | Path, split: str, window_ms: int = 100) -> list[Window]:
@@ -485,8 +491,16 @@ class FileSource:
         return cls(tuple(str(p) for p in split_files(data_dir, split)), window_ms)
 
     def draw(self, rng: np.random.Generator, index: int) -> Window:
+        """The window's events only are read from its file (the same window as
+        :func:`random_window` on the whole sequence gives)."""
         path = self.files[int(rng.integers(len(self.files)))]
-        return random_window(load_sequence(path), self.window_ms, rng, source=path, index=index)
+        file = sequence_index(path)
+        sequence = Recording(EventArray.empty(*file.sensor), file.gyro, file.attrs)
+        start = random_start(sequence, self.window_ms, rng, path)
+        end = start + self.window_ms * BIN_US
+        events = read_hdf5_span(path, start, end, file)
+        return window_at(replace(sequence, events=events), start, self.window_ms, source=path,
+                         index=index)  # fmt: skip
 
 
 @dataclass(frozen=True)
