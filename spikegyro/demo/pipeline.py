@@ -219,7 +219,7 @@ def _finetune(config: DemoConfig, data_dir: Path, run_dir: Path) -> dict[str, An
         "steps": result.steps,
         "loss_first_quarter": sum(losses[:k]) / k,
         "loss_last_quarter": sum(losses[-k:]) / k,
-        "val_median_relative_error": result.best_val_median_rel,
+        "val_median_relative_error": result.best_score,
         "run": str(run_dir),
     }
 

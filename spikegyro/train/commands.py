@@ -20,6 +20,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, NoReturn
 
+import torch
 import typer
 from rich.console import Console
 
@@ -31,7 +32,9 @@ from spikegyro.train.data import SampleError, sample_error_line
 from spikegyro.train.loop import TrainResult, resume_config, train
 from spikegyro.train.presets import PRESETS, SPARSE_DEFAULT_CUT, TrainConfig, resolve_config
 from spikegyro.train.relay import STATE_FILES, append_segment, plot_relay
-from spikegyro.train.throughput import cpu_has_bfloat16
+from spikegyro.train.throughput import cpu_has_bfloat16, resolve_amp
+
+PRECISION = {"bf16": "bfloat16 autocast", "off": "float32"}
 
 
 def _json_option(text: str | None, name: str) -> dict[str, Any] | None:
@@ -111,6 +114,15 @@ OPTION_HELP: dict[str, str] = {
     "bare_steps": "Bare training steps timed at the end, to compare with the run (0 = off).",
     "sim": "Simulator settings for --online, as JSON.",
     "tensorboard": "TB logs.",
+    "real": "A real recording to learn from without a gyro (repeat for several; any format).",
+    "real_calib": "Its calibration: a file or fx,fy,cx,cy in pixels (one for all, or one per "
+    "--real; default: an Event Camera Dataset folder's calib.txt).",
+    "real_share": "Share of each batch drawn from --real (1: real windows only).",
+    "real_loss": "contrast (sharpness of the events warped by the output) or teacher "
+    "(contrast maximization's estimates as labels).",
+    "real_weight": "Weight of the real windows' loss.",
+    "real_span_ms": "Events of this many ms before each scored step are warped.",
+    "real_holdout": "Last share of each real recording, held out for validation.",
 }
 """TrainConfig field -> help of its option ``--FIELD-NAME``, which overrides the preset's (or the
 resumed run's) value when given. The option's type is the field's: a bool is a ``--x/--no-x``
@@ -143,6 +155,8 @@ def _config_option(name: str) -> inspect.Parameter:
     flag = name.replace("_", "-")
     if kind is dict:
         kind = str
+    elif kind is list:
+        kind = list[str]  # a repeatable option
     elif name in PATH_FIELDS:
         kind = Path
     declaration = f"--{flag}/--no-{flag}" if kind is bool else f"--{flag}"
@@ -174,6 +188,8 @@ def _overrides(
     for name, value in options.items():
         if value is not None and _field_kind(name) is dict:
             value = _json_option(value, name.replace("_", "-"))
+        if isinstance(value, (list, tuple)):
+            value = [str(v) for v in value] or None  # a repeatable option given no time
         overrides[name] = str(value) if isinstance(value, Path) else value
     if (sensor_width is None) != (sensor_height is None):
         raise InputError("--sensor-width and --sensor-height go together.")
@@ -198,6 +214,23 @@ def _run_config(
     return resolve_config(preset, {**overrides, "out": str(out)})
 
 
+def precision_line(amp: str, device: torch.device) -> str:
+    """The one line an ANN run starts with: the precision it trains in, and why."""
+    resolved = resolve_amp(amp, "voxel", device)
+    native = device.type == "cpu" and cpu_has_bfloat16()
+    if resolved == "bf16" and device.type == "cpu" and not native:
+        return (
+            "warning: --amp bf16 on a CPU without bfloat16 instructions (AVX-512 BF16 or AMX): "
+            "usually several times slower than float32 here (it is meant for GPUs)."
+        )
+    if amp != "auto":
+        return f"precision: {PRECISION[resolved]} (--amp {amp})"
+    if resolved == "bf16":
+        return f"precision: {PRECISION[resolved]} on this CPU's bfloat16 units (--amp off: float32)"
+    why = "on a GPU autocast is opt-in" if device.type != "cpu" else "no bfloat16 instructions"
+    return f"precision: float32, {why} (--amp bf16: bfloat16 autocast)"
+
+
 def _report(config: TrainConfig, result: TrainResult) -> None:
     """What the run did, where it is, and how to continue it when it was interrupted."""
     console = Console()
@@ -208,11 +241,18 @@ def _report(config: TrainConfig, result: TrainResult) -> None:
         f"[bold]train[/] {config.model} {state}: {result.steps} steps in "
         f"{result.elapsed_s / 60:.1f} min, last loss {result.last_loss:.3f} rad/s"
     )
-    if result.val:
+    val = result.val
+    if "val_median_rel" in val:
+        best = "" if config.real else f" (best median {result.best_score:.3f})"
         console.print(
-            f"validation: median relative error {result.val['val_median_rel']:.3f}, mean "
-            f"error {result.val['val_mean_err_deg']:.1f} deg/s (best median "
-            f"{result.best_val_median_rel:.3f})"
+            f"validation: median relative error {val['val_median_rel']:.3f}, mean "
+            f"error {val['val_mean_err_deg']:.1f} deg/s{best}"
+        )
+    if "val_real_gain" in val:
+        console.print(
+            f"held-out real windows: contrast gain {val['val_real_gain']:.3f} (ω = 0: 1; "
+            f"contrast maximization: {val['val_real_gain_cmax']:.3f}; best "
+            f"{-result.best_score:.3f})"
         )
     console.print(throughput_line(result))
     console.print(f"run directory: {result.run_dir}")
@@ -252,12 +292,9 @@ def train_command(
 ) -> None:
     """Train a model; writes config.json, log.csv, last.pt, best.pt and loss.png to --out."""
     config = _run_config(preset, out, resume, _overrides(options, sensor_width, sensor_height))
-    on_cpu = distributed.pick_device(config.device).type == "cpu"
-    if config.amp != "off" and on_cpu and not cpu_has_bfloat16():
-        Console(stderr=True).print(
-            f"warning: --amp {config.amp} on a CPU without bfloat16 instructions (AVX-512 BF16 or "
-            "AMX): usually several times slower than float32 here (it is meant for GPUs)."
-        )
+    device = distributed.pick_device(config.device)
+    if config.input != "spikes" and distributed.init_rank() == 0:
+        Console(stderr=True).print(precision_line(config.amp, device), highlight=False)
     try:
         result = train(config, resume=resume)
     except SampleError as exc:

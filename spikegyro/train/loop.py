@@ -35,6 +35,7 @@ from spikegyro.models.registry import build_model, save_checkpoint
 from spikegyro.train import distributed
 from spikegyro.train.augment import AugmentConfig
 from spikegyro.train.data import (
+    EventBatch,
     FileSource,
     InputSpec,
     OnlineSource,
@@ -51,6 +52,7 @@ from spikegyro.train.interrupt import GracefulStop, ignore_interrupts
 from spikegyro.train.loss import validation_metrics
 from spikegyro.train.memory import keep_freed_memory
 from spikegyro.train.presets import TrainConfig, load_config
+from spikegyro.train.real import RealWindows, load_recordings, model_inputs, real_validation
 from spikegyro.train.runfiles import (
     ProgressBar,
     RunFiles,
@@ -60,7 +62,14 @@ from spikegyro.train.runfiles import (
     rng_states,
     tensorboard,
 )
-from spikegyro.train.throughput import BareStep, RunClock, bare_step_rate, train_step
+from spikegyro.train.selfsup import ContrastLossConfig, batch_loss
+from spikegyro.train.throughput import (
+    BareStep,
+    RunClock,
+    bare_step_rate,
+    resolve_amp,
+    train_step,
+)
 
 
 @dataclass
@@ -71,7 +80,7 @@ class TrainResult:
     steps: int
     elapsed_s: float
     last_loss: float
-    best_val_median_rel: float
+    best_score: float  # what best.pt minimizes (see selection_score)
     val: dict[str, float] = field(default_factory=dict)
     stopped_early: bool = False
     samples_per_s: float = math.nan  # steady state, without validation (see RunClock)
@@ -288,6 +297,7 @@ def train(config: TrainConfig, *, resume: bool = False, progress: bool = True) -
     if not config.out:
         raise InputError("train: give a run directory (--out DIR).")
     ctx = distributed.init_distributed(config.device)
+    config = replace(config, amp=resolve_amp(config.amp, config.input, ctx.device))
     try:
         return _train(config, ctx, resume=resume, progress=progress)
     finally:
@@ -313,6 +323,8 @@ class _Run:
     best: float = math.inf  # lowest validation median relative error so far
     best_on: str = ""  # windows_fingerprint of the validation windows ``best`` was measured on
     val_windows: list[Window] = field(default_factory=list)
+    real: RealWindows | None = None  # unlabeled real windows (``config.real``)
+    real_val: list[Any] = field(default_factory=list)  # held-out real windows, scored
 
 
 @dataclass
@@ -347,13 +359,13 @@ def _train(
         ids = [ctx.device.index] if ctx.device.type == "cuda" else None
         net = DistributedDataParallel(run.model, device_ids=ids)
     events = events_on_device(ctx.device, config.data_path, run.compute == "sparse")
-    samples = training_samples(config, run.spec, events=events)
+    samples = None if config.real_only else training_samples(config, run.spec, events=events)
     _prepare_validation(run)
     if ctx.is_main:
         run.files.write_config(config)
         run.files.start_log(run.start_step)
     writer = tensorboard(run.files.dir) if config.tensorboard and ctx.is_main else None
-    loader = _loader(samples, config, ctx, run.start_step)
+    loader = None if samples is None else _loader(samples, config, ctx, run.start_step)
     bar = ProgressBar(config, run.start_step, enabled=progress and ctx.is_main)
     clock = RunClock(config.batch_size)
     state = _Progress(step=run.start_step, t0=time.monotonic() - run.elapsed0)
@@ -361,7 +373,13 @@ def _train(
         _steps(run, net, loader, state, clock, bar, writer, interrupt)
     elapsed = time.monotonic() - state.t0
     bare = None
-    if config.bare_steps and state.step > run.start_step and not interrupt.requested:
+    # the bare step times the supervised step on a batch of labelled windows only
+    if (
+        config.bare_steps
+        and state.step > run.start_step
+        and not interrupt.requested
+        and not config.real
+    ):
         bare = _bare_step(run, state)
     data_path = "events" if events else "dense"
     if ctx.is_main:
@@ -377,6 +395,7 @@ def _train(
 def _build_run(config: TrainConfig, ctx: distributed.DistContext, resume: bool) -> _Run:
     """Model, optimizer and schedule, from ``--init`` or, on resume, from the run's state."""
     spec = input_spec_of(config)
+    real = real_windows(config, spec)  # first: a bad recording must stop the run before it starts
     kwargs = model_kwargs_of(config, spec)
     seed_everything(config.seed)
     model = build_model(config.model, **kwargs)
@@ -387,7 +406,7 @@ def _build_run(config: TrainConfig, ctx: distributed.DistContext, resume: bool) 
     optimizer = torch.optim.Adam(trained, lr=config.lr)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: lr_factor(s, config))
     run = _Run(config, ctx, RunFiles(Path(config.out)), spec, kwargs, model, optimizer, scheduler,
-               compute, before)  # fmt: skip
+               compute, before, real=real)  # fmt: skip
     if resume:
         run.start_step, run.best, run.elapsed0, run.best_on, run.before = load_resume(
             run.files, model, optimizer, scheduler, ctx.device
@@ -395,6 +414,19 @@ def _build_run(config: TrainConfig, ctx: distributed.DistContext, resume: bool) 
         _use_configured_lr(optimizer, scheduler, config)
         check_time_budget(config.max_minutes, run.elapsed0)
     return run
+
+
+def real_windows(config: TrainConfig, spec: InputSpec) -> RealWindows | None:
+    """The run's unlabeled real training windows (None without ``config.real``), the
+    recordings read and checked."""
+    if not config.real:
+        return None
+    window_ms = max(config.window_ms, config.train_window_ms)
+    loss = ContrastLossConfig(span_ms=config.real_span_ms, from_step=config.train_loss_start_step)
+    recordings = load_recordings(config.real, config.real_calib or [], window_ms,
+                                 config.real_holdout, loss)  # fmt: skip
+    return RealWindows(recordings, replace(spec, window_ms=config.train_window_ms), loss,
+                       config.seed)  # fmt: skip
 
 
 def _use_configured_lr(
@@ -412,8 +444,12 @@ def _prepare_validation(run: _Run) -> None:
     """Load the validation windows on rank 0; forget a resumed best measured on other data."""
     if not run.ctx.is_main:
         return
-    run.val_windows = validation_windows(run.config)
-    val_id = windows_fingerprint(run.val_windows)
+    if run.real is not None:
+        loss = replace(run.real.loss, from_step=run.config.loss_start_step)
+        spec = replace(run.real.spec, window_ms=run.config.window_ms)
+        run.real_val = RealWindows(run.real.recordings, spec, loss, run.config.seed).validation()
+    run.val_windows = [] if run.config.real_only else validation_windows(run.config)
+    val_id = windows_fingerprint(run.val_windows + [w for w, _ in run.real_val])
     if run.best_on != val_id and math.isfinite(run.best):
         # A best score on other validation data must not block the new data's best.pt.
         print(
@@ -436,12 +472,11 @@ def _loader(
 ) -> DataLoader:
     """This process's share of the batches of steps ``start_step .. iterations-1``."""
     workers = _data_workers(config.num_workers)
+    batch = config.batch_size - config.real_count()  # the simulated windows of each step
     return DataLoader(
         samples,
-        batch_size=config.batch_size // ctx.world_size,
-        sampler=StepSampler(
-            start_step, config.iterations, config.batch_size, ctx.rank, ctx.world_size
-        ),
+        batch_size=batch // ctx.world_size,
+        sampler=StepSampler(start_step, config.iterations, batch, ctx.rank, ctx.world_size),
         num_workers=workers,
         collate_fn=samples.collate,
         worker_init_fn=_worker_init if workers else None,
@@ -450,10 +485,31 @@ def _loader(
     )
 
 
+def _batches(run: _Run, loader: DataLoader | None, events: bool) -> Iterator[tuple[Any, ...]]:
+    """Each step's (inputs, targets, real windows' sub-windows): the simulated windows of the
+    loader first, then ``config.real_count()`` real ones drawn for the step."""
+    config = run.config
+    steps = range(run.start_step, config.iterations)
+    if run.real is None:
+        assert loader is not None
+        for inputs, targets in loader:
+            yield inputs, targets, []
+        return
+    spec = run.real.spec
+    empty = torch.empty(0, 3, spec.window_ms)
+    sim = loader if loader is not None else ((None, empty) for _ in steps)
+    for step, (inputs, targets) in zip(steps, sim, strict=False):
+        drawn = run.real.draw(step, config.real_count())
+        real = model_inputs([w for w, _ in drawn], spec, events)
+        if inputs is not None:
+            real = EventBatch.concatenate([inputs, real]) if events else torch.cat([inputs, real])
+        yield real, targets, [subs for _, subs in drawn]
+
+
 def _steps(
     run: _Run,
     net: nn.Module,
-    loader: DataLoader,
+    loader: DataLoader | None,
     state: _Progress,
     clock: RunClock,
     bar: ProgressBar,
@@ -464,12 +520,14 @@ def _steps(
     checkpointing on the way (every process agrees on when to stop)."""
     config, ctx = run.config, run.ctx
     amp = config.amp != "off"
-    spec = loader.dataset.spec  # of the training windows (``train_window_ms`` long)
+    spec = replace(run.spec, window_ms=config.train_window_ms)
+    events = loader.dataset.events if loader is not None else run.compute == "sparse"
     net.train()
-    for inputs, targets in loader:
+    for inputs, targets, subs in _batches(run, loader, events):
         x, y = device_batch(inputs, targets, spec, ctx.device, run.compute == "sparse")
+        extra = _real_loss(run, subs) if subs else None
         loss = train_step(net, run.optimizer, x, y, config.train_loss_start_step,
-                          config.grad_clip, amp)  # fmt: skip
+                          config.grad_clip, amp, extra)  # fmt: skip
         run.scheduler.step()
         state.batch = (x, y)
         state.step += 1
@@ -491,6 +549,15 @@ def _steps(
             break
 
 
+def _real_loss(run: _Run, subs: list[Any]) -> Any:
+    """The self-supervised loss of a step's real windows, as a function of their outputs."""
+    assert run.real is not None
+    config = run.config
+    return lambda omega: (
+        config.real_weight * batch_loss(omega, subs, run.real.loss, config.real_loss)
+    )
+
+
 def _log_row(run: _Run, state: _Progress) -> dict[str, Any]:
     """The loss (averaged over processes) and rates since the last row; restarts the average."""
     state.last_loss = distributed.mean_across(state.loss_sum / state.loss_n, run.ctx)
@@ -510,13 +577,27 @@ def _validate_and_checkpoint(run: _Run, state: _Progress) -> dict[str, str]:
     """Validate and checkpoint on rank 0 (the others wait); returns the metrics' log columns."""
     columns = {}
     if run.ctx.is_main:
-        state.val = validate(run.model, run.spec, run.val_windows, run.config, run.ctx.device)
+        state.val = {}
+        if run.val_windows:
+            state.val = validate(run.model, run.spec, run.val_windows, run.config, run.ctx.device)
+        if run.real is not None:
+            state.val.update(real_validation(run.model, run.real, run.real_val))
+            run.model.train()
         columns = {k: f"{v:.6g}" for k, v in state.val.items()}
-        better = state.val["val_median_rel"] < run.best
-        run.best = min(run.best, state.val["val_median_rel"])
+        score = selection_score(state.val)
+        better = score < run.best
+        run.best = min(run.best, score)
         _checkpoint(run, state.step, time.monotonic() - state.t0, state.val, better)
     distributed.barrier(run.ctx)
     return columns
+
+
+def selection_score(val: dict[str, float]) -> float:
+    """What best.pt minimizes: with real recordings, the held-out real windows' contrast gain
+    (negated: the run is for real cameras), else the validation median relative error."""
+    if "val_real_gain" in val:
+        return -val["val_real_gain"]
+    return val["val_median_rel"]
 
 
 def _write_row(files: RunFiles, writer: Any, row: dict[str, Any]) -> None:

@@ -19,7 +19,7 @@ from spikegyro.models.snn6 import SNN6_LAYERS
 from spikegyro.snn.functional import TAU_RHO
 from spikegyro.train.data import DATA_PATHS
 
-AMP_MODES = ("off", "bf16")
+AMP_MODES = ("auto", "off", "bf16")
 COMPUTE_MODES = ("auto", "sparse", "dense")
 SPARSE_DEFAULT_CUT = 0.2
 """Surrogate cut of the sparse engine by default: ρ kept where |u − θ| <= 0.48θ (gradients with
@@ -89,13 +89,26 @@ class TrainConfig:
         surrogate_cut: bound of the SNN's surrogate gradient, as a share of its peak (0 =
             SLAYER's unbounded pdf); None: 0.2 with the sparse engine (which needs a cut above
             exp(−1/0.3) ≈ 0.036), 0 with the dense path. Equal cuts give equal gradients.
-        amp: "off", or "bf16" to run the ANNs' forward passes in bfloat16 autocast (weights,
-            optimizer and loss stay float32; no loss scaling is needed with bfloat16). The SNN
-            stays in float32: its threshold crossings are exact comparisons.
+        amp: "bf16" runs the ANNs' forward passes in bfloat16 autocast (weights, optimizer and
+            loss stay float32; no loss scaling is needed with bfloat16), "off" in float32;
+            "auto" (the default) is "bf16" for an ANN on a CPU with bfloat16 instructions
+            (:func:`~spikegyro.train.throughput.resolve_amp`), else "off". The SNN stays in
+            float32: its threshold crossings are exact comparisons.
         bare_steps: at the end of the run, time this many bare training steps (same step on one
             batch already on the device) to report beside the run's samples/s (0 = off).
         sim: SimConfig overrides for online mode (dict; see ``spikegyro simulate``).
         tensorboard: also write TensorBoard scalars (needs the tensorboard package).
+        real: real recordings (any format the project reads) trained on as unlabeled windows
+            with a self-supervised loss (:mod:`spikegyro.train.selfsup`); None: none.
+        real_calib: their calibration: a file or ``fx,fy,cx,cy`` (pixels), one for all or one
+            per recording (None: an Event Camera Dataset folder's calib.txt).
+        real_share: share of each batch's windows drawn from ``real`` (1: real windows only,
+            no simulated data needed).
+        real_loss: "contrast" (1 − contrast gain of the events warped by the output) or
+            "teacher" (Euclidean error to contrast maximization's estimates).
+        real_weight: weight of the real windows' loss against the simulated windows' loss.
+        real_span_ms: events of this many ms before each reference step are warped.
+        real_holdout: the last share of each recording, held out to validate on by contrast.
     """
 
     preset: str = "paper"
@@ -139,12 +152,19 @@ class TrainConfig:
     threads: int = 0
     device: str = "auto"
     data_path: str = "auto"
-    amp: str = "off"
+    amp: str = "auto"
     compute: str = "auto"
     surrogate_cut: float | None = None
     bare_steps: int = 10
     sim: dict[str, Any] | None = None
     tensorboard: bool = False
+    real: list[str] | None = None
+    real_calib: list[str] | None = None
+    real_share: float = 0.5
+    real_loss: str = "contrast"
+    real_weight: float = 1.0
+    real_span_ms: float = 40.0
+    real_holdout: float = 0.2
 
     def __post_init__(self) -> None:
         if self.model not in MODEL_INPUTS:
@@ -161,7 +181,7 @@ class TrainConfig:
             raise InputError(f"--data-path {self.data_path}: choose one of {choices}.")
         if self.amp not in AMP_MODES:
             raise InputError(f"--amp {self.amp}: choose one of {', '.join(AMP_MODES)}.")
-        if self.amp != "off" and self.input == "spikes":
+        if self.amp == "bf16" and self.input == "spikes":
             raise InputError(
                 f"--amp {self.amp} with --model {self.model}: mixed precision is for the ANNs; "
                 "the SNN's threshold crossings need float32 (use --amp off)."
@@ -206,7 +226,8 @@ class TrainConfig:
             raise InputError(f"--noise-events-hz {self.noise_events_hz}: must be >= 0.")
         if not 0.0 <= self.centre_crop <= 1.0:
             raise InputError(f"--centre-crop {self.centre_crop}: a probability, must lie in 0..1.")
-        if not self.data and not self.online:
+        self._check_real()
+        if not self.data and not self.online and not self.real_only:
             raise InputError("train: give --data DIR (a simulated dataset) or --online.")
         self._check_ranges()
         check_device(self.device)
@@ -237,6 +258,39 @@ class TrainConfig:
                 f"--surrogate-cut {cut} with --compute sparse: the event-driven engine needs a "
                 f"cut above {SPARSE_MIN_CUT:.4f} (a support that excludes rest; default "
                 f"{SPARSE_DEFAULT_CUT})."
+            )
+
+    @property
+    def real_only(self) -> bool:
+        """Whether every training window is a real one (no simulated data)."""
+        return bool(self.real) and self.real_share >= 1.0
+
+    def real_count(self) -> int:
+        """Real windows in each batch (0 without ``real``)."""
+        if not self.real:
+            return 0
+        return min(self.batch_size, max(1, round(self.batch_size * self.real_share)))
+
+    def _check_real(self) -> None:
+        from spikegyro.train.selfsup import LOSSES
+
+        if not self.real:
+            return
+        if self.input != "spikes":
+            raise InputError(
+                f"--real with --model {self.model}: the self-supervised loss scores an SNN's "
+                "per-millisecond output; the ANNs predict window means."
+            )
+        if not 0.0 < self.real_share <= 1.0:
+            raise InputError(f"--real-share {self.real_share}: must lie in (0, 1].")
+        if self.real_loss not in LOSSES:
+            raise InputError(f"--real-loss {self.real_loss}: choose one of {', '.join(LOSSES)}.")
+        if not self.real_weight > 0:
+            raise InputError(f"--real-weight {self.real_weight}: must be > 0.")
+        if not 0 < self.real_span_ms <= self.loss_start_step:
+            raise InputError(
+                f"--real-span-ms {self.real_span_ms}: must lie in (0, {self.loss_start_step}] "
+                "(the events before the first scored step)."
             )
 
     def resolved_cut(self, compute: str) -> float:

@@ -30,6 +30,8 @@ LOG_FIELDS = (
     "val_loss",
     "val_median_rel",
     "val_mean_err_deg",
+    "val_real_gain",
+    "val_real_gain_cmax",
     "elapsed_s",
     "samples_per_s",
 )
