@@ -520,6 +520,8 @@ def test_cli_stops_on_a_failing_sample_in_one_line_keeping_the_checkpoint(
     capfd.readouterr()
     assert run(args) == 1
     err = [line for line in capfd.readouterr().err.splitlines() if line.strip()]
+    assert [line for line in err if line.startswith("precision:")] == err[:1]  # said at start
+    err = err[1:]
     assert len(err) == 1, err
     assert err[0].startswith("error: training stopped, a data worker failed: training sample 4 ")
     assert "ValueError: unreadable window" in err[0]

@@ -73,3 +73,40 @@ def test_bad_options_are_one_line_errors(given, tmp_path, capsys, args, message)
     assert run(["train", "--data", str(tmp_path), *args]) == 2
     assert message in capsys.readouterr().err
     assert "config" not in given
+
+
+@pytest.mark.parametrize(
+    ("amp", "representation", "device", "native", "resolved"),
+    [
+        ("auto", "voxel", "cpu", True, "bf16"),
+        ("auto", "frames", "cpu", False, "off"),
+        ("auto", "voxel", "cuda", True, "off"),
+        ("auto", "spikes", "cpu", True, "off"),
+        ("bf16", "voxel", "cpu", False, "bf16"),
+        ("off", "voxel", "cpu", True, "off"),
+    ],
+)
+def test_amp_auto_is_bfloat16_for_the_anns_on_a_cpu_that_computes_in_it(
+    monkeypatch, amp, representation, device, native, resolved
+):
+    import torch
+
+    from spikegyro.train import throughput
+
+    monkeypatch.setattr(throughput, "cpu_has_bfloat16", lambda: native)
+    monkeypatch.setattr(commands, "cpu_has_bfloat16", lambda: native)
+    assert throughput.resolve_amp(amp, representation, torch.device(device)) == resolved
+    if representation != "spikes":
+        line = commands.precision_line(amp, torch.device(device))
+        assert "\n" not in line
+        if amp == "bf16" and not native:
+            assert line.startswith("warning: --amp bf16 on a CPU without bfloat16 instructions")
+        else:
+            assert line.startswith(f"precision: {commands.PRECISION[resolved]}")
+
+
+def test_amp_is_auto_by_default_and_bf16_is_refused_for_the_snn():
+    assert TrainConfig(data="d").amp == "auto"
+    assert TrainConfig(data="d", model="ann6", input="voxel").amp == "auto"
+    with pytest.raises(Exception, match="mixed precision is for the ANNs"):
+        TrainConfig(data="d", amp="bf16")
