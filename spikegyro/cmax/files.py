@@ -15,6 +15,7 @@ from spikegyro.cmax.problem import Intrinsics, camera_from_attrs, default_camera
 from spikegyro.cmax.search import estimate_window
 from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration
+from spikegyro.events.core import EventArray
 from spikegyro.events.io import detect_format, iter_event_chunks, read_hdf5_attrs, read_recording
 from spikegyro.events.windows import BIN_US
 
@@ -79,20 +80,29 @@ def cmax_estimator_for_file(
 
 
 def cmax_estimator_for_stream(
-    name: str,
-    sensor: tuple[int, int],
     calibration: Calibration | None = None,
     rate_hz: float | None = None,
     window_ms: float | None = None,
-) -> tuple[CMaxEstimator, str]:
-    """A :class:`CMaxEstimator` for a live stream ``name`` of a ``sensor`` (width, height) px,
-    as :func:`cmax_estimator_for_file`: the calibration given, else the default pinhole (with a
-    warning line)."""
+) -> CMaxEstimator:
+    """A :class:`CMaxEstimator` for a live stream, as :func:`cmax_estimator_for_file`: the
+    calibration given, else the default pinhole of the first batch's sensor
+    (:func:`stream_camera_note` says which). Its compiled code is loaded here, by a throwaway
+    run on random events, so that the stream does not queue up while it loads (about 2 s)."""
     config = _with_options(None, rate_hz, window_ms)
+    rng = np.random.default_rng(0)
+    n = 20_000
+    t = np.sort(rng.integers(0, 60_000, n))
+    xy = rng.integers(0, 180, (2, n))
+    warm = EventArray.from_arrays(xy[0], xy[1], t, rng.integers(0, 2, n), 240, 180)
+    CMaxEstimator(None, config).run(warm)
+    return CMaxEstimator(calibration, config)
+
+
+def stream_camera_note(name: str, sensor: tuple[int, int], calibration: Calibration | None) -> str:
+    """The line saying which intrinsics :func:`cmax_estimator_for_stream` uses on ``sensor``."""
     if calibration is not None:
-        return CMaxEstimator(calibration, config), _given(calibration)
-    camera = default_camera(*sensor)
-    return CMaxEstimator(camera, config), _assumed(name, camera)
+        return _given(calibration)
+    return _assumed(name, default_camera(*sensor))
 
 
 def _with_options(

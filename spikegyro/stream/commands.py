@@ -11,7 +11,7 @@ from rich.console import Console
 from spikegyro import options
 from spikegyro.errors import InputError
 from spikegyro.events.io import EVENT_FILE_HELP
-from spikegyro.events.sources import URL_HELP, LiveSource, is_live, open_source
+from spikegyro.events.sources import URL_HELP, is_live, open_source
 from spikegyro.pretrained import checkpoint_help
 from spikegyro.stream.console import (
     PREDICTIONS_OUT,
@@ -21,7 +21,7 @@ from spikegyro.stream.console import (
     stream_with_progress,
 )
 from spikegyro.stream.estimator import GyroEstimator
-from spikegyro.stream.live import check_live_options, closing_on_error, run_live
+from spikegyro.stream.live import check_live_options, run_live
 from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_engine
 from spikegyro.stream.predict import SNN_REAL_DATA_NOTE, SNNEstimator, is_simulated, summary_lines
 from spikegyro.stream.writer import STDOUT, check_prediction_path
@@ -141,13 +141,16 @@ def predict(
     )
     console = Console(stderr=True)
     print_lines(console, inputs.notes)
-    if live:
+    if live:  # the estimator first: the stream does not wait for it
+        engine_options = (device, threads, segment_ms, context_ms, batch)
+        estimator = _live_estimator(
+            method, events, inputs, rate_hz, window_ms, checkpoint, engine_options
+        )
         source = open_source(events)
-        with closing_on_error(source):
-            engine_options = (device, threads, segment_ms, context_ms, batch)
-            estimator = _estimator(
-                method, source, inputs, rate_hz, window_ms, checkpoint, engine_options, console
-            )
+        if method == "cmax":
+            from spikegyro.cmax.files import stream_camera_note
+
+            console.print(stream_camera_note(source.name, source.sensor, inputs.calibration))
         run_live(console, source, estimator, out, start, end, inputs.gyro_rotation, method)
         return
     events = Path(events)
@@ -197,24 +200,20 @@ def _check_method(
     return method
 
 
-def _estimator(
+def _live_estimator(
     method: str,
-    source: LiveSource,
+    source: str,
     inputs: StreamInputs,
     rate_hz: float | None,
     window_ms: float | None,
     checkpoint: Path | None,
     engine_options: tuple,
-    console: Console,
 ) -> GyroEstimator:
-    """The estimator for a live source (its sensor from the stream)."""
+    """The estimator for a live source, ready before it connects (the sensor comes with the
+    first batch)."""
     if method == "cmax":
         from spikegyro.cmax.files import cmax_estimator_for_stream
 
-        estimator, note = cmax_estimator_for_stream(
-            source.name, source.sensor, inputs.calibration, rate_hz, window_ms
-        )
-        console.print(note)
-        return estimator
+        return cmax_estimator_for_stream(inputs.calibration, rate_hz, window_ms)
     engine, payload = load_engine(checkpoint or DEFAULT_CHECKPOINT, *engine_options)
-    return SNNEstimator(engine, payload.get("input", {}), inputs.calibration, rate_hz, source.name)
+    return SNNEstimator(engine, payload.get("input", {}), inputs.calibration, rate_hz, source)

@@ -18,8 +18,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -221,16 +220,6 @@ def check_live_options(
         )
     if width is not None or height is not None:
         raise InputError(f"--width/--height with {source}: the stream gives its sensor size.")
-
-
-@contextmanager
-def closing_on_error(source: LiveSource) -> Iterator[LiveSource]:
-    """``source``, closed if the block raises (an estimator that cannot be built)."""
-    try:
-        yield source
-    except BaseException:
-        source.close()
-        raise
 
 
 def run_live(
