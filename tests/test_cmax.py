@@ -166,6 +166,20 @@ def test_maximize_bfgs_finds_the_peak_of_a_skewed_quadratic() -> None:
     np.testing.assert_allclose(maximize_bfgs(objective, np.zeros(3), 50).x, peak, atol=1e-3)
 
 
+def test_maximize_bfgs_curvature_from_a_start_near_the_peak() -> None:
+    # Started next to the peak, the gradient is tiny and a gradient step's h (1/|g|) is huge;
+    # the curvature handed on to warm-start the next window must be the measured one instead,
+    # or tracking steps far too long along the directions this run never probed.
+    curvature = np.array([1.0, 10.0, 100.0])
+
+    def objective(x: np.ndarray) -> tuple[float, np.ndarray]:
+        return -0.5 * float(x @ (curvature * x)), -(curvature * x)
+
+    found = maximize_bfgs(objective, np.array([1e-3, 0.0, 0.0]), 1, first_step=0.5)
+    inverse = np.diag(found.inv_hessian)
+    assert inverse.max() <= 1.0 / curvature.min() + 1e-9, inverse
+
+
 @pytest.mark.parametrize(
     "omega_dps",
     [(150.0, 0.0, 0.0), (0.0, -150.0, 0.0), (0.0, 0.0, 200.0), (120.0, -80.0, 60.0)],

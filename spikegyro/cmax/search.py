@@ -97,11 +97,14 @@ def maximize_bfgs(
         return eye * first_step / max(float(np.linalg.norm(g)), 1e-30)
 
     h = gradient_step() if inv_hessian is None else np.array(inv_hessian, dtype=np.float64)
+    # A gradient step's h says nothing of the curvature (its scale, 1/|g|, grows without bound
+    # near the maximum): the first update rescales it by the curvature measured along the step.
+    measured = inv_hessian is not None
     for _ in range(iterations):
         direction = h @ g
         slope = float(g @ direction)
         if not slope > 0:
-            h = gradient_step()
+            h, measured = gradient_step(), False
             direction, slope = h @ g, first_step * float(np.linalg.norm(g))
         step = 1.0
         while True:
@@ -117,6 +120,8 @@ def maximize_bfgs(
         x, f, g = x_new, f_new, g_new
         sy = float(s @ y)
         if sy > 1e-12:
+            if not measured:
+                h, measured = eye * (sy / float(y @ y)), True  # Nocedal & Wright (6.20)
             rho = 1.0 / sy
             left = eye - rho * np.outer(s, y)
             h = left @ h @ left.T + rho * np.outer(s, s)
