@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 import sys
 from pathlib import Path
 
@@ -167,7 +168,7 @@ def test_report_compares_runs_beside_the_paper(evaluated, tmp_path):
     models = compare_runs([out, out], tmp_path)
     assert list(models) == ["SNN-6", f"SNN-6 [{out.name}]", "Mean"]
     page = (tmp_path / "report.html").read_text()
-    assert page.count("data:image/png;base64,") == 1
+    assert page.count("data:image/png;base64,") == 3  # bins, boxes, one window
     assert "226.9" in page and "Table I" in page
     saved = json.loads((tmp_path / "comparison.json").read_text())
     assert saved["SNN-6"]["metrics"] == result["model"]["metrics"]
@@ -363,3 +364,33 @@ def test_table_one_holds_the_runs_metrics_paper_rows_budget_and_energy(
     assert saved["Mean"]["operations"] is None
     page = (tmp_path / "report.html").read_text()
     assert "Horowitz" in page and "Davies" in page
+
+
+def test_report_draws_one_window_of_every_model_from_their_predictions(evaluated, tmp_path):
+    from spikegyro.evaluate.compare import window_figure
+
+    out, _ = evaluated
+    compare_runs([out, out], tmp_path / "cmp")
+    assert all((tmp_path / "cmp" / f).exists() for f in ("bins.png", "boxes.png", "window.png"))
+    saved = np.load(out / "predictions.npz")
+    speed = np.linalg.norm(saved["gt"][:, 50:], axis=-1).mean(axis=1)
+    median = int(np.argsort(speed, kind="stable")[len(speed) // 2])
+    fig, caption = window_figure([out, out], ["a", "b"], None)
+    assert caption.startswith(f"One test window, all models on the same events (paper Fig. 3): "
+                              f"window {median}:")  # fmt: skip
+    for i, ax in enumerate(fig.axes[:3]):  # tilt, pan, roll
+        lines = {line.get_label(): line.get_ydata() for line in ax.get_lines()}
+        assert list(lines) == ["ground truth", "a", "b", "Mean"]
+        np.testing.assert_allclose(lines["ground truth"], np.degrees(saved["gt"][median, :, i]))
+        np.testing.assert_allclose(lines["b"], np.degrees(saved["pred"][median, :, i]))
+        np.testing.assert_allclose(lines["Mean"], np.degrees(saved["mean_omega"][i]))
+    with pytest.raises(InputError, match=r"--window 3: the runs scored windows 0\.\.2"):
+        window_figure([out], ["a"], 3)
+    other = tmp_path / "other"
+    shutil.copytree(out, other)
+    np.savez(other / "predictions.npz", **{**saved, "t_start_us": saved["t_start_us"] + 1000})
+    compare_runs([out, other], tmp_path / "cmp2")  # the tables and the other figures still
+    assert "No window figure: " in (tmp_path / "cmp2" / "report.md").read_text()
+    assert not (tmp_path / "cmp2" / "window.png").exists()
+    with pytest.raises(InputError, match="scored other windows"):
+        compare_runs([out, other], tmp_path / "cmp3", window=0)

@@ -43,3 +43,14 @@ def test_box_figure_uses_axis_colors_and_survives_empty_bins():
     }
     texts = [t.get_text() for t in fig.axes[0].texts]
     assert texts.count("no data") == 3  # bins from 300 deg/s up
+
+
+def test_the_box_comparison_has_a_row_per_model_on_one_scale():
+    runs = {"SNN-6": _per_bin(0.2), "ANN-6": _per_bin(0.9)}
+    fig = figures.axis_relative_error_boxes_by_model(runs)
+    assert [ax.get_title() for ax in fig.axes] == ["SNN-6", "ANN-6"]
+    assert fig.axes[0].get_ylim() == fig.axes[1].get_ylim()
+    boxes = [b["per_axis"][a]["relative_error"] for b in runs["ANN-6"] if b["n_pairs"]
+             for a in ("tilt", "pan", "roll")]  # fmt: skip
+    whiskers = [abs(box[w]) for box in boxes if box["n"] for w in ("whislo", "whishi")]
+    assert fig.axes[0].get_ylim()[1] >= max(whiskers)  # the wider model sets the shared scale

@@ -74,12 +74,21 @@ def evaluate(
 def report(
     run_dirs: list[Path] = typer.Argument(..., help="Output folders of `spikegyro evaluate`."),
     out: Path = typer.Option(..., "--out", help="Output folder for the comparison."),
+    window: int = typer.Option(
+        None,
+        "--window",
+        min=0,
+        help="Test window of the qualitative figure (default: the one of median speed).",
+    ),
 ) -> None:
-    """The paper's Table I over evaluated runs: accuracy, training budget, energy per estimate."""
+    """The paper's Table I over evaluated runs: accuracy, training budget, energy per estimate,
+    and its figures with all models side by side."""
     console = Console(stderr=True)
-    models = compare_runs(list(run_dirs), out)
+    models = compare_runs(list(run_dirs), out, window)
     console.print(console_summary(table_one(models)))
-    console.print(f"wrote {out}/report.html, report.md, bins.png, comparison.json")
+    console.print(
+        f"wrote {out}/report.html, report.md, bins.png, boxes.png, window.png, comparison.json"
+    )
 
 
 def evaluate_real(

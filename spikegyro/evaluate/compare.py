@@ -7,7 +7,12 @@ Reads the ``metrics.json`` of each ``spikegyro evaluate`` output folder and writ
   estimate), each of our rows followed by the paper's published row for that model, labelled as
   the paper's; the energy table with its sources; the per-speed-bin table and figure (Fig. 4);
 - the per-axis table: mean absolute error on tilt, pan and roll, every model side by side;
-- ``bins.png``; ``comparison.json``: the same numbers, machine-readable.
+- the paper's three figure kinds with every model side by side: ``bins.png`` (median relative
+  error per speed bin, Fig. 4), ``boxes.png`` (signed relative error per axis and speed bin,
+  Fig. 5, one row per model) and ``window.png`` (one test window: ground truth and every model's
+  ω over time, Fig. 3; from the runs' ``predictions.npz``, so all runs must have scored the same
+  windows);
+- ``comparison.json``: the numbers, machine-readable.
 
 Training steps and time come from the checkpoint named in ``metrics.json`` (its ``extra``: step
 and elapsed seconds of the run, device when the run named one), "n/a" where it is not readable
@@ -22,6 +27,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from rich.markup import escape
 from rich.table import Table as RichTable
@@ -29,7 +35,7 @@ from rich.table import Table as RichTable
 from spikegyro.errors import InputError
 from spikegyro.evaluate import energy, figures
 from spikegyro.evaluate.console import write_json
-from spikegyro.evaluate.metrics import AXES, WINDOW_METRIC_MS
+from spikegyro.evaluate.metrics import AXES, EVAL_START_STEP, WINDOW_METRIC_MS
 from spikegyro.evaluate.report import (
     PAPER_RESULTS,
     PER_MS_LABEL,
@@ -284,12 +290,13 @@ def axis_mae_table(models: dict[str, dict[str, Any]]) -> Table:
 
 
 def compare_runs(
-    run_dirs: list[str | os.PathLike], out_dir: str | os.PathLike
+    run_dirs: list[str | os.PathLike], out_dir: str | os.PathLike, window: int | None = None
 ) -> dict[str, dict[str, Any]]:
-    """Table I, energy and the per-bin figure over several ``evaluate`` outputs.
+    """Table I, energy and the paper's figures over several ``evaluate`` outputs.
 
-    The mean predictor is taken from the first run. Returns {model name: its metrics.json entry
-    plus ``info`` (training) and ``operations``}.
+    The mean predictor is taken from the first run; ``window``: the test window of the
+    qualitative figure (default: the one of median speed). Returns {model name: its
+    metrics.json entry plus ``info`` (training) and ``operations``}.
     """
     if not run_dirs:
         raise InputError("report: give at least one RUN_DIR written by `spikegyro evaluate`.")
@@ -319,15 +326,12 @@ def compare_runs(
         notes.append("Warning: the runs were scored on different data; compare with care.")
     out_dir.mkdir(parents=True, exist_ok=True)
     per_bin = {k: m["per_bin"] for k, m in models.items()}
-    figures.save_figure(figures.median_relative_error_per_bin(per_bin), out_dir / "bins.png")
     blocks: list[Block] = [
         *notes,
         table_one(models),
         axis_mae_table(models),
         energy_table(models),
-        FigureRef(
-            "Median relative error per true-speed bin, all models (paper Fig. 4).", "bins.png"
-        ),
+        *comparison_figures(run_dirs, list(models)[: len(runs)], per_bin, out_dir, window),
         bin_table(per_bin),
     ]
     write_report(out_dir, "spikegyro comparison (paper Table I)", blocks)
@@ -346,6 +350,78 @@ def compare_runs(
     }
     write_json(out_dir / "comparison.json", summary)
     return models
+
+
+def comparison_figures(
+    run_dirs: list[str | os.PathLike],
+    names: list[str],
+    per_bin: dict[str, Any],
+    out_dir: Path,
+    window: int | None,
+) -> list[Block]:
+    """The paper's three figure kinds with every model side by side, written to ``out_dir``;
+    their report entries (a note instead of the window figure when it cannot be drawn)."""
+    figures.save_figure(figures.median_relative_error_per_bin(per_bin), out_dir / "bins.png")
+    learned = {name: bins for name, bins in per_bin.items() if name != "Mean"}
+    figures.save_figure(figures.axis_relative_error_boxes_by_model(learned), out_dir / "boxes.png")
+    blocks: list[Block] = [
+        FigureRef("Median relative error per true-speed bin, all models (paper Fig. 4).",
+                  "bins.png"),
+        FigureRef("Signed relative error per axis and true-speed bin, one row per model (paper "
+                  "Fig. 5); boxes: quartiles, whiskers: 1.5 IQR.", "boxes.png"),
+    ]  # fmt: skip
+    try:
+        fig, caption = window_figure(run_dirs, names, window)
+    except InputError as exc:
+        if window is not None:
+            raise
+        return [*blocks, f"No window figure: {exc}"]
+    figures.save_figure(fig, out_dir / "window.png")
+    return [*blocks, FigureRef(caption, "window.png")]
+
+
+def _predictions(run_dir: str | os.PathLike) -> dict[str, np.ndarray]:
+    path = Path(run_dir) / "predictions.npz"
+    if not path.exists():
+        raise InputError(f"{path}: missing (written by `spikegyro evaluate`).")
+    with np.load(path) as data:
+        return {key: data[key] for key in ("pred", "gt", "mean_omega", "sources", "t_start_us")}
+
+
+def window_figure(
+    run_dirs: list[str | os.PathLike], names: list[str], window: int | None
+) -> tuple[Any, str]:
+    """Ground truth and every model's ω over one test window (``window``: its index; None: the
+    window of median true speed over the scored steps), and the figure's caption. InputError
+    when the runs scored different windows or the index is out of range."""
+    runs = [_predictions(r) for r in run_dirs]
+    first = runs[0]
+    for run_dir, run in zip(run_dirs[1:], runs[1:], strict=True):
+        same = np.array_equal(run["sources"], first["sources"]) and np.array_equal(
+            run["t_start_us"], first["t_start_us"]
+        )
+        if not same:
+            raise InputError(f"{run_dir}: scored other windows than {run_dirs[0]}.")
+    gt = np.degrees(first["gt"])
+    start = EVAL_START_STEP
+    if window is None:
+        speed = np.linalg.norm(gt[:, start:], axis=-1).mean(axis=1)
+        window = int(np.argsort(speed, kind="stable")[len(speed) // 2])
+    if not 0 <= window < len(gt):
+        raise InputError(f"--window {window}: the runs scored windows 0..{len(gt) - 1}.")
+    series = {name: np.degrees(run["pred"][window]) for name, run in zip(names, runs, strict=True)}
+    series["Mean"] = np.broadcast_to(np.degrees(first["mean_omega"]), gt[window].shape)
+    t_ms = np.arange(1, gt.shape[1] + 1, dtype=np.float64)
+    source = Path(str(first["sources"][window])).name
+    title = f"window {window}: {source}, from {first['t_start_us'][window] / 1e3:g} ms"
+    fig = figures.omega_traces(t_ms, series, (t_ms, gt[window]), shade_until_ms=start,
+                               title=title, reference_label="ground truth")  # fmt: skip
+    caption = (
+        f"One test window, all models on the same events (paper Fig. 3): {title}; angular "
+        "velocity per axis at the end of each 1 ms bin, the ANNs' window means held over their "
+        "window; grey: the first 50 ms, not scored."
+    )
+    return fig, caption
 
 
 CONSOLE_COLUMNS = {

@@ -114,23 +114,16 @@ def median_relative_error_per_bin(
     return fig
 
 
-def axis_relative_error_boxes(per_bin: Sequence[Mapping[str, Any]], model_name: str) -> Figure:
-    """Box plots of the signed per-axis relative error per speed bin (paper Fig. 5).
-
-    Boxes span the quartiles, whiskers reach the furthest value within 1.5 IQR; outliers are not
-    drawn. Reads the box statistics stored by :func:`spikegyro.evaluate.bins.per_bin_metrics`.
-    """
-    fig = Figure(figsize=(max(8.5, 1.3 * len(per_bin) + 1.5), 4.4))
-    ax = fig.add_subplot()
+def _axis_boxes(ax: Any, per_bin: Sequence[Mapping[str, Any]]) -> float:
+    """Draw one model's per-axis boxes per speed bin on ``ax``; returns the largest |whisker|."""
     width = 0.25
-    lows, highs = [], []
+    reach = 0.0
     for i, b in enumerate(per_bin):
         for j, axis in enumerate(AXES):
             stats = b.get("per_axis", {}).get(axis, {}).get("relative_error", {"n": 0})
             if stats["n"] == 0:
                 continue
-            lows.append(stats["whislo"])
-            highs.append(stats["whishi"])
+            reach = max(reach, abs(stats["whislo"]), abs(stats["whishi"]))
             ax.bxp(
                 [stats],
                 positions=[i + (j - 1) * (width + 0.03)],
@@ -144,24 +137,52 @@ def axis_relative_error_boxes(per_bin: Sequence[Mapping[str, Any]], model_name: 
     ax.axhline(0.0, color="black", linewidth=0.8, linestyle=":")
     ax.set_xticks(range(len(per_bin)), [f"{b['label']}\nn={b['n_pairs']:,}" for b in per_bin])
     ax.set_xlim(-0.6, len(per_bin) - 0.4)
-    clipped = False
-    if lows:
-        span = max(abs(min(lows)), abs(max(highs)), 0.05) * 1.1
-        clipped = span > BOX_CLIP
-        span = min(span, BOX_CLIP)
-        ax.set_ylim(-span, span)
-    ax.set_xlabel("true angular speed ‖ω̂‖ [deg/s]  (n = evaluated 1 ms steps)")
-    ylabel = "signed relative error (ω_i − ω̂_i) / |ω̂_i| [-]"
-    ax.set_ylabel(ylabel + (f"\n(clipped at ±{BOX_CLIP:g})" if clipped else ""))
-    ax.set_title(f"{model_name}: per-axis relative error per speed bin")
     ax.grid(axis="y", alpha=0.3)
+    return reach
+
+
+def _box_figure(panels: Mapping[str, Sequence[Mapping[str, Any]]], title: str) -> Figure:
+    """One row of per-axis boxes per panel (model), on a shared y range."""
+    bins = len(next(iter(panels.values())))
+    fig = Figure(figsize=(max(8.5, 1.3 * bins + 1.5), 0.4 + 3.6 * len(panels)))
+    axes = fig.subplots(len(panels), 1, sharex=True, sharey=True, squeeze=False)
+    reach = 0.0
+    for ax, (name, per_bin) in zip(axes[:, 0], panels.items(), strict=True):
+        reach = max(reach, _axis_boxes(ax, per_bin))
+        ax.set_title(title.format(model=name))
+    clipped = False
+    if reach > 0:
+        span = max(reach, 0.05) * 1.1
+        clipped = span > BOX_CLIP
+        axes[0, 0].set_ylim(-min(span, BOX_CLIP), min(span, BOX_CLIP))
+    ylabel = "signed relative error (ω_i − ω̂_i) / |ω̂_i| [-]"
+    for ax in axes[:, 0]:
+        ax.set_ylabel(ylabel + (f"\n(clipped at ±{BOX_CLIP:g})" if clipped else ""))
+    axes[-1, 0].set_xlabel("true angular speed ‖ω̂‖ [deg/s]  (n = evaluated 1 ms steps)")
     handles = [
         Patch(facecolor=AXIS_COLORS[a], alpha=0.8, label=f"{a} ({AXIS_SYMBOLS[a]})") for a in AXES
     ]
-    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0),
-              title="axis")  # fmt: skip
+    axes[0, 0].legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+                      title="axis")  # fmt: skip
     fig.tight_layout()
     return fig
+
+
+def axis_relative_error_boxes(per_bin: Sequence[Mapping[str, Any]], model_name: str) -> Figure:
+    """Box plots of the signed per-axis relative error per speed bin (paper Fig. 5).
+
+    Boxes span the quartiles, whiskers reach the furthest value within 1.5 IQR; outliers are not
+    drawn. Reads the box statistics stored by :func:`spikegyro.evaluate.bins.per_bin_metrics`.
+    """
+    return _box_figure({model_name: per_bin}, "{model}: per-axis relative error per speed bin")
+
+
+def axis_relative_error_boxes_by_model(
+    per_bin_by_model: Mapping[str, Sequence[Mapping[str, Any]]],
+) -> Figure:
+    """:func:`axis_relative_error_boxes` of several models, one row each, on one y range (the
+    comparison of the paper's Fig. 5 across models; all with the same bins)."""
+    return _box_figure(per_bin_by_model, "{model}")
 
 
 def omega_traces(
@@ -171,6 +192,7 @@ def omega_traces(
     held: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
     shade_until_ms: float | None = None,
     title: str = "",
+    reference_label: str = "gyro",
 ) -> Figure:
     """Angular velocity per axis over time: a reference, per-ms series and held estimates.
 
@@ -182,6 +204,7 @@ def omega_traces(
         held: model name -> (starts ms, ends ms, (n, 3) deg/s): one value held over each
             interval (e.g. one estimate per window), drawn as thick segments.
         shade_until_ms: grey out ``t < shade_until_ms`` (the unscored warm-up).
+        reference_label: the reference's name in the legend.
     """
     fig = Figure(figsize=(10.0, 7.0))
     axes = fig.subplots(3, 1, sharex=True)
@@ -189,7 +212,7 @@ def omega_traces(
     for i, (ax, axis) in enumerate(zip(axes, AXES, strict=True)):
         if shade_until_ms is not None:
             ax.axvspan(min(t_ms[0], 0.0) if len(t_ms) else 0.0, shade_until_ms, color="0.92")
-        ax.plot(ref_t, ref[:, i], color="black", lw=1.4, marker=".", ms=3, label="gyro")
+        ax.plot(ref_t, ref[:, i], color="black", lw=1.4, marker=".", ms=3, label=reference_label)
         for name, values in series.items():
             ax.plot(t_ms, values[:, i], color=model_color(name), lw=1.0, label=name)
         for name, (starts, ends, values) in (held or {}).items():
