@@ -129,6 +129,26 @@ CASES: dict[str, str] = {
     "train-missing-data": "train --data {root}/missing --out {out}/t",
     "train-out-is-file": "train --data {data} --out {existing.csv}",
     "train-bad-model": "train --data {data} --out {out}/t --model bogus",
+    "train-real-no-calibration": "train --data {data} --out {out}/t --real {events.txt}",
+    "train-real-unreadable": "train --data {data} --out {out}/t --real {garbage.h5} "
+    "--real-calib 200,200,120,90",
+    "train-real-bad-calib": "train --data {data} --out {out}/t --real {events.txt} "
+    "--real-calib 200,200",
+    "train-real-ann": "train --data {data} --out {out}/t --model ann6 --real {events.txt} "
+    "--real-calib 200,200,120,90",
+    "train-real-bad-share": "train --data {data} --out {out}/t --real {events.txt} "
+    "--real-calib 200,200,120,90 --real-share 0",
+    "train-real-bad-loss": "train --data {data} --out {out}/t --real {events.txt} "
+    "--real-calib 200,200,120,90 --real-loss bogus",
+    "adapt-no-calibration": "adapt {events.txt} --out {out}/a.pt",
+    "adapt-calib-and-intrinsics": "adapt {events.txt} --out {out}/a.pt --calib {events.txt} "
+    "--intrinsics 200 200 120 90",
+    "adapt-ann-checkpoint": "adapt {events.txt} --out {out}/a.pt --intrinsics 200 200 120 90 "
+    "--checkpoint ann6",
+    "adapt-out-missing-folder": "adapt {events.txt} --out {out}/no/a.pt --intrinsics 200 200 120 90",
+    "adapt-too-short": "adapt {events.txt} --out {out}/a.pt --intrinsics 200 200 120 90 --end 0.05",
+    "adapt-zero-budget": "adapt {events.txt} --out {out}/a.pt --intrinsics 200 200 120 90 "
+    "--max-minutes 0",
     # relay-log
     "relay-not-a-run": "relay-log {dir} --relay {out}/relay",
     "relay-missing-run": "relay-log {root}/missing --relay {out}/relay",

@@ -26,8 +26,10 @@ from rich.console import Console
 
 from spikegyro.errors import InputError
 from spikegyro.models.registry import read_checkpoint
-from spikegyro.pretrained import checkpoint_help
+from spikegyro.options import END, INTRINSICS, START
+from spikegyro.pretrained import DEFAULT_NAME, checkpoint_help
 from spikegyro.train import distributed
+from spikegyro.train.adapt import AdaptSettings, adapt, adapt_config, run_dir_of
 from spikegyro.train.data import SampleError, sample_error_line
 from spikegyro.train.loop import TrainResult, resume_config, train
 from spikegyro.train.presets import PRESETS, SPARSE_DEFAULT_CUT, TrainConfig, resolve_config
@@ -121,8 +123,10 @@ OPTION_HELP: dict[str, str] = {
     "real_loss": "contrast (sharpness of the events warped by the output) or teacher "
     "(contrast maximization's estimates as labels).",
     "real_weight": "Weight of the real windows' loss.",
-    "real_span_ms": "Events of this many ms before each scored step are warped.",
+    "real_span_ms": "Events of at least this many ms before each scored step are warped.",
     "real_holdout": "Last share of each real recording, held out for validation.",
+    "real_start": "Use each real recording from this many seconds after its first event.",
+    "real_end": "... to this many seconds after it (default: its end).",
 }
 """TrainConfig field -> help of its option ``--FIELD-NAME``, which overrides the preset's (or the
 resumed run's) value when given. The option's type is the field's: a bool is a ``--x/--no-x``
@@ -327,3 +331,44 @@ def relay_log_command(
         f"segment {entry['segment']}: steps {entry['first_step']:,}-{entry['last_step']:,}, "
         f"{entry['train_s']:.0f} s; wrote {relay}/relay_log.csv, relay.json, relay_curve.png"
     )
+
+
+def adapt_command(
+    recordings: list[Path] = typer.Argument(..., help="Your camera's recordings (any format)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The adapted checkpoint to write (.pt)."),
+    calib: Path = typer.Option(
+        None, "--calib", help="Calibration file (fx fy cx cy k1 k2 p1 p2 k3)."
+    ),
+    intrinsics: tuple[float, float, float, float] = INTRINSICS,
+    checkpoint: str = typer.Option(
+        DEFAULT_NAME, "--checkpoint", help=checkpoint_help("Start from")
+    ),
+    start: float = START,
+    end: float = END,
+    max_minutes: float = typer.Option(10.0, "--max-minutes", help="Training time budget."),
+    loss: str = typer.Option("contrast", "--loss", help="contrast or teacher."),
+    lr: float = typer.Option(1e-4, "--lr", help="Adam learning rate."),
+    batch_size: int = typer.Option(4, "--batch-size", help="Real windows per step."),
+    seed: int = typer.Option(0, "--seed", help="Random seed of the windows drawn."),
+) -> None:
+    """Fine-tune the SNN on your own recordings without a gyro (self-supervised, by contrast)."""
+    if calib is not None and intrinsics is not None:
+        raise InputError("--calib and --intrinsics: give one of them, not both.")
+    camera = str(calib) if calib is not None else None
+    if intrinsics is not None:
+        camera = ",".join(f"{v:g}" for v in intrinsics)
+    settings = AdaptSettings([str(r) for r in recordings], camera, checkpoint, out, start, end,
+                             max_minutes, loss, lr, batch_size, seed=seed)  # fmt: skip
+    adapted = adapt(settings, adapt_config(settings))
+    console = Console()
+    result = adapted.result
+    console.print(
+        f"[bold]adapt[/] {result.steps} steps in {result.elapsed_s / 60:.1f} min; contrast gain "
+        f"on the held-out windows: {adapted.gain_start:.3f} -> {adapted.gain_end:.3f} (ω = 0: 1; "
+        f"contrast maximization: {adapted.gain_cmax:.3f})"
+    )
+    if adapted.kept_start:
+        console.print("no validation beat the starting weights: the checkpoint holds them")
+    console.print(f"wrote {out} (run files in {run_dir_of(out)}); use it with --checkpoint {out}")
+    if result.interrupted:
+        raise typer.Exit(130)

@@ -88,6 +88,7 @@ class TrainResult:
     data_path: str = "dense"
     interrupted: bool = False  # stopped by Ctrl-C (see spikegyro.train.interrupt)
     compute: str = "dense"  # how the training step ran: "sparse" (event engine) or "dense"
+    val_start: dict[str, float] = field(default_factory=dict)  # real windows, before step 1
 
 
 # ------------------------------------------------------------------------------ components
@@ -365,6 +366,7 @@ def _train(
         run.files.write_config(config)
         run.files.start_log(run.start_step)
     writer = tensorboard(run.files.dir) if config.tensorboard and ctx.is_main else None
+    val_start = _validate_start(run, writer)
     loader = None if samples is None else _loader(samples, config, ctx, run.start_step)
     bar = ProgressBar(config, run.start_step, enabled=progress and ctx.is_main)
     clock = RunClock(config.batch_size)
@@ -389,7 +391,8 @@ def _train(
         run.files.write_throughput(clock.samples_per_s, bare, data_path, ctx.world_size)
     return TrainResult(run.files.dir, state.step, elapsed, state.last_loss, run.best, state.val,
                        state.stopped_early, clock.samples_per_s, bare, data_path,
-                       interrupt.requested and state.stopped_early, run.compute)  # fmt: skip
+                       interrupt.requested and state.stopped_early, run.compute,
+                       val_start)  # fmt: skip
 
 
 def _build_run(config: TrainConfig, ctx: distributed.DistContext, resume: bool) -> _Run:
@@ -424,9 +427,21 @@ def real_windows(config: TrainConfig, spec: InputSpec) -> RealWindows | None:
     window_ms = max(config.window_ms, config.train_window_ms)
     loss = ContrastLossConfig(span_ms=config.real_span_ms, from_step=config.train_loss_start_step)
     recordings = load_recordings(config.real, config.real_calib or [], window_ms,
-                                 config.real_holdout, loss)  # fmt: skip
+                                 config.real_holdout, loss,
+                                 span_s=(config.real_start, config.real_end))  # fmt: skip
     return RealWindows(recordings, replace(spec, window_ms=config.train_window_ms), loss,
                        config.seed)  # fmt: skip
+
+
+def _validate_start(run: _Run, writer: Any) -> dict[str, float]:
+    """Score the starting weights on the held-out real windows (a log row at step 0), so that
+    what the run gains on real data is measured; {} without real recordings or on resume."""
+    if run.real is None or run.start_step or not run.ctx.is_main:
+        return {}
+    val = real_validation(run.model, run.real, run.real_val)
+    run.model.train()
+    _write_row(run.files, writer, {"step": 0, **{k: f"{v:.6g}" for k, v in val.items()}})
+    return val
 
 
 def _use_configured_lr(

@@ -107,8 +107,11 @@ class TrainConfig:
         real_loss: "contrast" (1 − contrast gain of the events warped by the output) or
             "teacher" (Euclidean error to contrast maximization's estimates).
         real_weight: weight of the real windows' loss against the simulated windows' loss.
-        real_span_ms: events of this many ms before each reference step are warped.
+        real_span_ms: events of at least this many ms before each reference step are warped
+            (longer where the motion is slow; see ``ContrastLossConfig``).
         real_holdout: the last share of each recording, held out to validate on by contrast.
+        real_start, real_end: the part of each real recording used, seconds after its first
+            event (None: to its last event).
     """
 
     preset: str = "paper"
@@ -165,6 +168,8 @@ class TrainConfig:
     real_weight: float = 1.0
     real_span_ms: float = 40.0
     real_holdout: float = 0.2
+    real_start: float = 0.0
+    real_end: float | None = None
 
     def __post_init__(self) -> None:
         if self.model not in MODEL_INPUTS:
@@ -287,11 +292,13 @@ class TrainConfig:
             raise InputError(f"--real-loss {self.real_loss}: choose one of {', '.join(LOSSES)}.")
         if not self.real_weight > 0:
             raise InputError(f"--real-weight {self.real_weight}: must be > 0.")
-        if not 0 < self.real_span_ms <= self.loss_start_step:
+        if self.real_start < 0 or (self.real_end is not None and self.real_end <= self.real_start):
             raise InputError(
-                f"--real-span-ms {self.real_span_ms}: must lie in (0, {self.loss_start_step}] "
-                "(the events before the first scored step)."
+                f"--real-start {self.real_start} / --real-end {self.real_end}: the start must be "
+                ">= 0 s and the end after it."
             )
+        if not 0 < self.real_span_ms <= 1000:
+            raise InputError(f"--real-span-ms {self.real_span_ms}: must lie in (0, 1000] ms.")
 
     def resolved_cut(self, compute: str) -> float:
         """The surrogate cut a run with ``compute`` ("sparse" or "dense") uses."""

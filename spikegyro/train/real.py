@@ -101,9 +101,11 @@ def load_recordings(
     holdout: float,
     loss: ContrastLossConfig,
     progress: bool = True,
+    span_s: tuple[float, float | None] = (0.0, None),
 ) -> list[RealRecording]:
     """Read and check the real recordings of a run (see the module docstring), and run
     contrast maximization over each (the teacher; about 25 ms of CPU per 5 ms of recording).
+    ``span_s``: the part of each recording used, seconds after its first event.
 
     Raises :class:`InputError` for an unreadable file, a missing calibration, too few events or
     a recording too short for a training and a validation window, before any teacher work.
@@ -114,7 +116,7 @@ def load_recordings(
     parts = []
     for path, camera in zip(paths, cameras, strict=True):
         try:
-            events = read_recording(path).events
+            events = _cropped(read_recording(path).events, span_s)
         except (OSError, ValueError) as exc:
             raise InputError(f"{path}: cannot read it as an event recording ({exc}).") from None
         parts.append((path, events, camera, _spans(path, events, window_ms, holdout)))
@@ -128,6 +130,15 @@ def load_recordings(
             )
             recordings.append(RealRecording(str(path), events, camera, train, val, teacher))
     return recordings
+
+
+def _cropped(events: EventArray, span_s: tuple[float, float | None]) -> EventArray:
+    """The events from ``span_s[0]`` to ``span_s[1]`` seconds after the first one."""
+    if not len(events) or span_s == (0.0, None):
+        return events
+    first = int(events.t[0])
+    end = events.t[-1] + 1 if span_s[1] is None else first + round(span_s[1] * 1e6)
+    return events.slice_time(first + round(span_s[0] * 1e6), int(end))
 
 
 def _spans(

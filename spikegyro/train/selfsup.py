@@ -36,6 +36,7 @@ import torch
 from spikegyro.cmax.config import CMaxConfig
 from spikegyro.cmax.problem import Intrinsics, Problem, make_problem
 from spikegyro.cmax.search import search
+from spikegyro.cmax.windows import pixel_speed, rms_radius
 from spikegyro.events.core import EventArray
 
 LOSSES = ("contrast", "teacher")
@@ -46,9 +47,13 @@ class ContrastLossConfig:
     """Where and how a window's ω(t) is scored by event contrast.
 
     Attributes:
-        span_ms: events of this many milliseconds before each reference time are warped (slow
-            motion needs edges to move a few pixels: 40 ms at 30 deg/s and f = 245 px moves tilt
-            and pan edges 5 px).
+        span_ms: events of at least this many milliseconds before each reference time are
+            warped ...
+        max_span_ms: ... and at most this many: within these bounds, long enough that the
+            teacher's rotation moves edges ``target_px`` (slow motion needs long spans: at
+            5 deg/s and f = 245 px edges move a pixel every 47 ms). Spans may reach before the
+            window's start: the loss reads the recording, not the window.
+        target_px: typical edge displacement over a span, pixels.
         every_ms: a reference step every this many milliseconds ...
         from_step: ... from this step (ms) of the window on, where the network has settled.
         sigma_px: Gaussian blur of the IWE, pixels.
@@ -59,6 +64,8 @@ class ContrastLossConfig:
     """
 
     span_ms: float = 40.0
+    max_span_ms: float = 200.0
+    target_px: float = 4.0
     every_ms: int = 10
     from_step: int = 50
     sigma_px: float = 1.0
@@ -90,10 +97,13 @@ def sub_problem(
     camera: Intrinsics,
     config: ContrastLossConfig,
     rng: np.random.Generator,
+    span_us: int | None = None,
 ) -> Problem | None:
-    """The events of ``span_ms`` before ``t_ref_us`` (µs) as a warping problem with times to
-    ``t_ref_us``; None when fewer than ``min_events`` remain (hot pixels dropped)."""
-    part = events.slice_time(int(t_ref_us - config.span_ms * 1000), int(t_ref_us))
+    """The events of ``span_us`` (default ``span_ms``) before ``t_ref_us`` (µs) as a warping
+    problem with times to ``t_ref_us``; None when fewer than ``min_events`` remain (hot pixels
+    dropped)."""
+    span_us = int(config.span_ms * 1000) if span_us is None else span_us
+    part = events.slice_time(int(t_ref_us - span_us), int(t_ref_us))
     if len(part) < config.min_events:
         return None
     cmax = CMaxConfig(max_events=config.max_events)
@@ -152,18 +162,20 @@ def window_loss(
 @dataclass(frozen=True)
 class TeacherSeries:
     """Contrast maximization's estimate on the sub-window ending at each of ``t_us`` (µs, a
-    regular grid): ω (n, 3) rad/s and its contrast gain (n,) (NaN where too few events)."""
+    regular grid): ω (n, 3) rad/s, its contrast gain (n,) (NaN where too few events) and the
+    sub-window's span (n,) µs."""
 
     t_us: np.ndarray
     omega: np.ndarray
     gain: np.ndarray
+    span_us: np.ndarray
 
-    def at(self, t_ref_us: int) -> tuple[np.ndarray, float]:
-        """The estimate of the grid time nearest ``t_ref_us``."""
+    def index(self, t_ref_us: int) -> int:
+        """The grid time nearest ``t_ref_us``."""
         i = int(np.clip(np.searchsorted(self.t_us, t_ref_us), 0, len(self.t_us) - 1))
         if i > 0 and t_ref_us - self.t_us[i - 1] < self.t_us[i] - t_ref_us:
             i -= 1
-        return self.omega[i], float(self.gain[i])
+        return i
 
 
 def teacher_series(
@@ -178,17 +190,22 @@ def teacher_series(
     """Contrast maximization over a whole recording, one estimate per ``grid_us`` (µs) from
     ``span_ms`` after its first event: each estimate refines the previous one (tracking, about
     25 ms of CPU), with a global grid search at the first and every ``search_every``-th, so a
-    lost track is found again. ``progress(k)`` is called after each estimate."""
-    span_us = int(config.span_ms * 1000)
-    t0 = int(events.t[0]) + span_us
-    times = np.arange(t0, int(events.t[-1]) + 1, grid_us, dtype=np.int64)
+    lost track is found again; each span follows the previous estimate's image speed (see
+    :class:`ContrastLossConfig`). ``progress(k)`` is called after each estimate."""
+    times = np.arange(int(events.t[0] + config.span_ms * 1000), int(events.t[-1]) + 1, grid_us)
     omega = np.zeros((len(times), 3))
     gain = np.full(len(times), np.nan)
+    spans = np.full(len(times), int(config.span_ms * 1000))
     cmax = CMaxConfig(max_events=config.max_events)
+    radius = rms_radius(events.width, events.height, camera.cx, camera.cy)
     previous: np.ndarray | None = None
     for k, t_ref in enumerate(times):
         rng = np.random.default_rng([k, 11])
-        problem = sub_problem(events, int(t_ref), camera, config, rng)
+        if previous is not None:
+            speed = pixel_speed(previous, camera.fx, radius)
+            span_s = config.target_px / max(speed, 1e-9)
+            spans[k] = int(1000 * np.clip(1000 * span_s, config.span_ms, config.max_span_ms))
+        problem = sub_problem(events, int(t_ref), camera, config, rng, int(spans[k]))
         if problem is not None:
             fresh = previous is None or k % search_every == 0
             omega[k] = search(problem, cmax, init=previous, grid=fresh, rng=rng).omega
@@ -196,7 +213,7 @@ def teacher_series(
             previous = omega[k]
         if progress is not None:
             progress(k + 1)
-    return TeacherSeries(times, omega.astype(np.float32), gain)
+    return TeacherSeries(times.astype(np.int64), omega.astype(np.float32), gain, spans)
 
 
 def scored_sub_window(
@@ -209,15 +226,15 @@ def scored_sub_window(
 ) -> SubWindow | None:
     """The sub-window of ``events`` ending at ``t_ref_us`` (µs) with the teacher's estimate;
     None when it has too few events or a flat image."""
+    i = teacher.index(t_ref_us)
     rng = np.random.default_rng([t_ref_us, 5])
-    problem = sub_problem(events, t_ref_us, camera, config, rng)
+    problem = sub_problem(events, t_ref_us, camera, config, rng, int(teacher.span_us[i]))
     if problem is None:
         return None
     c0 = problem.contrast(np.zeros(3), 1, config.sigma_px)[0]
     if not c0 > 0:
         return None
-    omega, gain = teacher.at(t_ref_us)
-    return SubWindow(step, problem, float(c0), omega, gain)
+    return SubWindow(step, problem, float(c0), teacher.omega[i], float(teacher.gain[i]))
 
 
 def gain_of_prediction(omega: np.ndarray, subs: list[SubWindow], sigma_px: float) -> float:
