@@ -337,7 +337,7 @@ def test_cli_fixed_count_windows_and_whole_span(tmp_path) -> None:
         " ".join(str(v) for v in (F, F, WIDTH / 2, HEIGHT / 2, -0.37, 0.15, -3e-4, -8e-4, 0.0))
     )
     out = tmp_path / "pred.csv"
-    _cli([str(path), "--calib", str(calib), "--window-events", "5000", "--rate-hz", "200",
+    _cli([str(path), "--calib", str(calib), "--live", "--window-events", "5000", "--rate-hz", "200",
           "--out", str(out)])  # fmt: skip
     pred = read_predictions(out)
     t0 = events.t[0] // 1000 * 1000

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_cmax import HEIGHT, WIDTH, F, point_track_events
 
 from spikegyro.cmax.confidence import one_rotation_explains, rotation_agreement
 from spikegyro.cmax.config import CMaxConfig
@@ -15,7 +16,6 @@ from spikegyro.cmax.search import estimate_window
 from spikegyro.events.calib import PinholeCamera
 from spikegyro.events.core import EventArray
 from spikegyro.stream.estimator import ILL_NOT_ONE_ROTATION
-from tests.test_cmax import HEIGHT, WIDTH, F, point_track_events
 
 CAMERA = PinholeCamera(WIDTH, HEIGHT, F, F, WIDTH / 2, HEIGHT / 2)
 

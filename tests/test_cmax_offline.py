@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_cmax import HEIGHT, WIDTH, F, assert_close_omega, point_track_events
 from typer.testing import CliRunner
 
 from spikegyro.cli import app
-from spikegyro.cmax.offline import estimate_offline, offline_times
+from spikegyro.cmax.offline import estimate_offline, offline_times, predict_windows_offline
 from spikegyro.events.calib import PinholeCamera
-from tests.test_cmax import HEIGHT, WIDTH, F, assert_close_omega, point_track_events
 
 CAMERA = PinholeCamera(WIDTH, HEIGHT, F, F, WIDTH / 2, HEIGHT / 2)
 
@@ -58,3 +58,38 @@ def test_predict_offline_and_its_bad_combinations(tmp_path):
     for extra in (["--method", "snn"], ["--method", "cmax", "--window-ms", "20"]):
         bad = CliRunner().invoke(app, ["predict", str(path), *extra, "--offline", "-o", "x.csv"])
         assert bad.exit_code != 0 and "--offline" in str(bad.exception)
+
+
+def test_baseline_cmax_is_offline_unless_live(tmp_path):
+    from spikegyro.events.core import Recording
+    from spikegyro.events.io import write_recording
+    from spikegyro.stream.writer import read_predictions
+
+    path = tmp_path / "pan.h5"
+    omega = np.radians([0.0, 60.0, 0.0])
+    events = point_track_events(omega, seed=4, duration_s=0.1, points=3000)
+    write_recording(path, Recording(events, None, {"fx": F, "fy": F, "cx": 120.0, "cy": 90.0}))
+    for engine in ([], ["--live"]):
+        out = tmp_path / f"b{len(engine)}.csv"
+        done = CliRunner().invoke(app, ["baseline", "cmax", str(path), *engine, "-o", str(out)])
+        assert done.exit_code == 0, done.output
+        assert ("causal windows" in done.output) == bool(engine), done.output
+        pred = read_predictions(out)
+        for w in pred["omega"][pred["t_us"] > events.t[0] + 50_000]:
+            assert_close_omega(w, omega)
+    bad = CliRunner().invoke(
+        app, ["baseline", "cmax", str(path), "--window-ms", "20", "-o", "x.csv"]
+    )
+    assert bad.exit_code != 0 and "--live" in str(bad.exception)
+
+
+def test_offline_series_per_window_for_evaluation():
+    from types import SimpleNamespace
+
+    omega = np.radians([30.0, 0.0, -90.0])
+    events = point_track_events(omega, seed=6, duration_s=0.1, points=3000).shift_time(500_000)
+    window = SimpleNamespace(events=events, omega=np.tile(omega, (100, 1)), t_start_us=500_000)
+    pred = predict_windows_offline([window], first_step=50)
+    assert pred.shape == (1, 100, 3) and not pred[0, :50].any()
+    for w in pred[0, 50:]:
+        assert_close_omega(w, omega)

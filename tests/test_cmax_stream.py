@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from test_cmax import HEIGHT, WIDTH, F, assert_close_omega, point_track_events
 from typer.testing import CliRunner
 
 from spikegyro.cli import app
@@ -22,7 +23,6 @@ from spikegyro.events.imu import fit_imu_to_camera, gyro_frame, imu_rotation, ro
 from spikegyro.events.io import write_gyro_txt, write_recording
 from spikegyro.stream.estimator import Estimates, GyroEstimator, output_times
 from spikegyro.stream.writer import read_predictions
-from tests.test_cmax import HEIGHT, WIDTH, F, assert_close_omega, point_track_events
 
 CAMERA = PinholeCamera(WIDTH, HEIGHT, F, F, WIDTH / 2, HEIGHT / 2)
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "real"

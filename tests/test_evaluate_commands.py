@@ -243,10 +243,16 @@ def test_cmax_is_scored_under_its_name_and_nan_steps_count_as_zero(dataset, tmp_
         pred[:, 60:70] = np.nan  # e.g. no estimate yet
         return pred
 
-    monkeypatch.setattr("spikegyro.cmax.series.predict_windows", fake_cmax)
+    def fake_live(windows, progress=None, first_step=0):
+        return np.zeros((len(windows), 100, 3))
+
+    monkeypatch.setattr("spikegyro.cmax.offline.predict_windows_offline", fake_cmax)
+    monkeypatch.setattr("spikegyro.cmax.series.predict_windows", fake_live)
     result = run_evaluation(dataset, None, "test", tmp_path, model="cmax", num_examples=0)
     assert calls == [3]
     assert result["model"]["name"] == "CMax" and "spikes" not in result["model"]
+    # The live engine is reported beside the offline one that the CMax row scores.
+    assert result["model"]["live"]["name"] == "CMax (live)"
     assert result["model"]["nonfinite_predictions"] == 3 * 10
     # Perfect except 10 of 50 evaluated steps predicted as 0: those have relative error 1.
     rel = result["model"]["metrics"]
@@ -275,10 +281,11 @@ def test_without_a_training_split_the_mean_predictor_says_zero(dataset, tmp_path
     (data / "test").mkdir(parents=True)
     for path in (dataset / "test").glob("*.h5"):
         (data / "test" / path.name).write_bytes(path.read_bytes())
-    monkeypatch.setattr(
-        "spikegyro.cmax.series.predict_windows",
-        lambda windows, progress=None: np.zeros((len(windows), 100, 3)),
-    )
+    for engine in ("offline.predict_windows_offline", "series.predict_windows"):
+        monkeypatch.setattr(
+            f"spikegyro.cmax.{engine}",
+            lambda windows, progress=None, first_step=0: np.zeros((len(windows), 100, 3)),
+        )
     result = run_evaluation(data, None, "test", tmp_path / "out", model="cmax", num_examples=0)
     assert result["mean"]["omega_rad_s"] == [0.0, 0.0, 0.0]
     assert any("mean predictor uses omega = 0" in w for w in result["warnings"])
@@ -394,3 +401,25 @@ def test_report_draws_one_window_of_every_model_from_their_predictions(evaluated
     assert not (tmp_path / "cmp2" / "window.png").exists()
     with pytest.raises(InputError, match="scored other windows"):
         compare_runs([out, other], tmp_path / "cmp3", window=0)
+
+
+def test_a_report_made_after_the_checkpoint_has_gone_keeps_its_budget_and_operations(
+    evaluated_ann, tmp_path
+):
+    """A GPU machine's run: scored there, its checkpoint left behind, reported elsewhere."""
+    from spikegyro.evaluate.compare import operations, training_info
+
+    ann_dir, _ = evaluated_ann
+    with_file = compare_runs([ann_dir], tmp_path / "a")["ANN-6"]
+    moved = tmp_path / "moved"
+    shutil.copytree(ann_dir, moved)
+    metrics = json.loads((moved / "metrics.json").read_text())
+    metrics["model"]["source"] = str(tmp_path / "gone.pt")
+    (moved / "metrics.json").write_text(json.dumps(metrics))
+    without = compare_runs([moved], tmp_path / "b")["ANN-6"]
+    assert without["info"] == with_file["info"]
+    assert without["info"]["steps"] == 123 and without["info"]["minutes"] == 10.0
+    assert without["info"]["device"] == "cuda"
+    assert without["operations"] == with_file["operations"] is not None
+    assert training_info(None)["steps"] is None and operations(metrics["model"], None) is None
+    assert "state_dict" not in json.dumps(metrics["model"]["checkpoint_meta"])

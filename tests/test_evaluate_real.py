@@ -238,7 +238,7 @@ def test_e2e_outputs(real_like):
     for name in ("report.html", "report.md", "predictions.csv", "windows.csv", "traces.png",
                  "offset.png", "bins.png", "axes_snn.png", "axes_cmax.png"):  # fmt: skip
         assert (out / name).stat().st_size > 0, name
-    assert set(metrics["models"]) == {"SNN-6", "CMax", "Mean", "CMax (window)"}
+    assert set(metrics["models"]) == {"SNN-6", "CMax", "CMax (live)", "Mean", "CMax (window)"}
     assert metrics["gyro"]["sampling_interval"]["median_us"] == pytest.approx(2500, abs=1)
     page = (out / "report.html").read_text()
     assert "Best clock offset" in page and "2.500 ms" in page

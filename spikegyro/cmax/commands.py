@@ -1,9 +1,11 @@
-"""``spikegyro baseline cmax`` (contrast maximization on an event file, the engine of ``predict
---method cmax``) and ``spikegyro calibrate-imu`` (the gyro's frame, bias and clock offset)."""
+"""``spikegyro baseline cmax`` (contrast maximization on an event file: the offline engine of
+``predict --method cmax --offline``, or with ``--live`` the live one) and ``spikegyro
+calibrate-imu`` (the gyro's frame, bias and clock offset)."""
 
 from __future__ import annotations
 
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +15,7 @@ from rich.console import Console
 from spikegyro import options
 from spikegyro.cmax.config import CMaxConfig
 from spikegyro.cmax.files import cmax_estimator_for_file, estimate_whole_file
+from spikegyro.cmax.offline import offline_estimator_for_file
 from spikegyro.cmax.windows import WindowPolicy
 from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration
@@ -49,22 +52,32 @@ RATE_HZ = typer.Option(
     CMaxConfig.rate_hz,
     "--rate-hz",
     min=0.0,
-    help="Estimates per second of events; 0: one per chunk of events read.",
+    help="Estimates per second of events; 0 (with --live): one per chunk of events read.",
+)
+LIVE = typer.Option(
+    False,
+    "--live",
+    help="The live engine of `predict --method cmax` (each estimate from the events before it, "
+    "in causal windows) instead of the offline one (centred windows).",
 )
 WINDOW_MS = typer.Option(
-    None, "--window-ms", min=0.1, help="A fixed causal window of this many ms (else adaptive)."
+    None,
+    "--window-ms",
+    min=0.1,
+    help="With --live: a fixed causal window of this many ms (else adaptive).",
 )
 WINDOW_EVENTS = typer.Option(
-    None, "--window-events", min=100, help="A fixed causal window of the last N events."
+    None, "--window-events", min=100, help="With --live: a fixed window of the last N events."
 )
 WHOLE = typer.Option(
     False, "--whole", help="One estimate from all events between --start and --end."
 )
 MAX_EVENTS = typer.Option(
-    CMaxConfig.track_events,
+    None,
     "--max-events",
     min=100,
-    help="Events an estimate uses at most (larger windows are thinned evenly).",
+    help="With --live: events an estimate uses at most (larger windows are thinned evenly; "
+    f"default {CMaxConfig.track_events:,}).",
 )
 
 
@@ -79,6 +92,7 @@ def cmax_command(
     end: float = options.END,
     out: Path = PREDICTIONS_OUT,
     rate_hz: float = RATE_HZ,
+    live: bool = LIVE,
     window_ms: float = WINDOW_MS,
     window_events: int = WINDOW_EVENTS,
     whole: bool = WHOLE,
@@ -86,15 +100,15 @@ def cmax_command(
     width: int = options.WIDTH,
     height: int = options.HEIGHT,
 ) -> None:
-    """Contrast maximization (Gallego & Scaramuzza 2017), no training: the engine of
-    `spikegyro predict --method cmax`, with its window settings exposed.
+    """Contrast maximization (Gallego & Scaramuzza 2017), no training, as a baseline on a file.
 
-    Each estimate, at --rate-hz, uses only the events before it, in a window that adapts to the
-    event rate and the motion (or is fixed by --window-ms or --window-events); each row is its
-    own estimate with its confidence. --whole gives one estimate from all events instead.
+    By default the offline engine of `predict --method cmax --offline`: each estimate, at
+    --rate-hz, from the events around its time. --live: the live engine of `predict --method
+    cmax` instead, each estimate from the events before it, in a window that adapts to the event
+    rate and the motion (or is fixed by --window-ms or --window-events). Each row is its own
+    estimate with its confidence. --whole gives one estimate from all events instead.
     """
-    if window_ms is not None and window_events is not None:
-        raise InputError("--window-ms and --window-events: give one of them, not both.")
+    _check_engine_options(live, whole, rate_hz, window_ms, window_events, max_events)
     check_prediction_path(out)
     inputs = stream_inputs(
         events, calib, intrinsics, gyro, imu_to_camera, width, height, start, end
@@ -104,17 +118,54 @@ def cmax_command(
     if whole:
         _whole(console, events, inputs.calibration, inputs.sensor, start, end, out)
         return
-    window = WindowPolicy(fixed_ms=window_ms or 0.0, fixed_events=window_events or 0)
-    config = CMaxConfig(rate_hz=rate_hz, window=window, track_events=max_events)
-    estimator, note = cmax_estimator_for_file(
-        events, inputs.calibration, inputs.sensor, config=config
-    )
+    if live:
+        window = WindowPolicy(fixed_ms=window_ms or 0.0, fixed_events=window_events or 0)
+        config = CMaxConfig(rate_hz=rate_hz, window=window)
+        if max_events is not None:
+            config = replace(config, track_events=max_events)
+        estimator, note = cmax_estimator_for_file(
+            events, inputs.calibration, inputs.sensor, config=config
+        )
+    else:
+        estimator, note = offline_estimator_for_file(
+            events, inputs.calibration, inputs.sensor, rate_hz
+        )
     console.print(note)
     result = stream_with_progress(
         console, "cmax", events, estimator, out, sensor=inputs.sensor, start_s=start, end_s=end,
         gyro_path=gyro, gyro_rotation=inputs.gyro_rotation,
     )  # fmt: skip
     print_lines(console, summary_lines(result, out))
+
+
+def _check_engine_options(
+    live: bool,
+    whole: bool,
+    rate_hz: float,
+    window_ms: float | None,
+    window_events: int | None,
+    max_events: int | None,
+) -> None:
+    """The window options go with --live (one of --window-ms and --window-events), not with
+    --whole; the offline engine needs a rate above 0."""
+    if window_ms is not None and window_events is not None:
+        raise InputError("--window-ms and --window-events: give one of them, not both.")
+    given = [
+        name
+        for name, value in (
+            ("--window-ms", window_ms),
+            ("--window-events", window_events),
+            ("--max-events", max_events),
+        )
+        if value is not None
+    ]
+    if given and (whole or not live):
+        raise InputError(
+            f"{given[0]} sets the live engine's windows: add --live (the offline engine and "
+            "--whole size their own)."
+        )
+    if not live and not whole and rate_hz <= 0:
+        raise InputError("--rate-hz 0 (one estimate per chunk read) needs --live.")
 
 
 def _whole(

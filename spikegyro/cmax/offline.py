@@ -24,7 +24,9 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -33,10 +35,11 @@ from spikegyro.cmax.config import CMaxConfig, Progress
 from spikegyro.cmax.files import camera_for_file
 from spikegyro.cmax.problem import Intrinsics, Problem, default_camera, ray_table
 from spikegyro.cmax.search import Refined, search
+from spikegyro.cmax.series import per_ms
 from spikegyro.cmax.windows import hot_pixel_mask, pixel_speed, rms_radius
 from spikegyro.events.calib import Calibration
 from spikegyro.events.core import EventArray
-from spikegyro.events.windows import BIN_US
+from spikegyro.events.windows import BIN_US, series_per_window
 from spikegyro.stream.estimator import (
     ILL_FEW_EVENTS,
     ILL_LITTLE_MOTION,
@@ -204,6 +207,7 @@ def estimate_offline(
     config: OfflineConfig | None = None,
     t0_us: int | None = None,
     progress: Progress | None = None,
+    since_us: int | None = None,
 ) -> Estimates:
     """Offline estimates over a recording in memory, one per ``1 / config.rate_hz`` s.
 
@@ -213,6 +217,7 @@ def estimate_offline(
         config: settings (:class:`OfflineConfig`).
         t0_us: the output clock's origin (default: the first event's whole millisecond).
         progress: optional ``progress(done, total)`` after each estimate.
+        since_us: no estimates before the last output time at or before this, µs (None: all).
 
     Returns:
         ``Estimates`` stamped at the times they stand for (the windows' centres; ``delay_us``
@@ -224,6 +229,8 @@ def estimate_offline(
     camera = camera or default_camera(events.width, events.height)
     t0 = int(events.t[0]) // BIN_US * BIN_US if t0_us is None else int(t0_us)
     times = offline_times(int(events.t[0]), int(events.t[-1]), t0, config.rate_hz)
+    if since_us is not None:
+        times = times[max(int(np.searchsorted(times, since_us, side="right")) - 1, 0) :]
     engine = _Engine(_rays(events, camera, config.base), camera, events.sensor_size, config)
     rows = []
     for k, t_us in enumerate(times.tolist()):
@@ -274,6 +281,42 @@ class OfflineCMax:
             return ""
         need = max(self.config.base.min_events, 2)
         return f"no window holds the {need:,} events (hot pixels dropped) an estimate needs"
+
+
+SIMULATED_OFFLINE = OfflineConfig(rate_hz=200.0)
+"""Offline estimates every 5 ms: the setting of ``spikegyro evaluate --model cmax``."""
+
+
+def predict_windows_offline(
+    windows: Sequence[Any],
+    config: OfflineConfig | None = None,
+    camera: Intrinsics | None = None,
+    progress: Progress | None = None,
+    first_step: int = 0,
+) -> np.ndarray:
+    """Per-ms ω (n, T, 3) rad/s for ``spikegyro.train.data.Window`` objects, offline.
+
+    Each window is processed on its own (no events from outside it, as for the networks): its
+    offline estimates every ``1 / config.rate_hz`` s (default :data:`SIMULATED_OFFLINE`),
+    interpolated linearly to each 1 ms step's end (:func:`~spikegyro.cmax.series.per_ms`), the
+    time the ground truth is sampled at. Steps before ``first_step`` are zero and cost nothing.
+    """
+    config = config or SIMULATED_OFFLINE
+
+    def series(batch: Sequence[Any]) -> np.ndarray:
+        (window,) = batch
+        steps = int(np.asarray(window.omega).shape[0])
+        t0 = int(window.t_start_us)
+        ends = t0 + BIN_US * (np.arange(steps, dtype=np.int64) + 1)
+        events = window.events.slice_time(t0, int(ends[-1]) + 1)
+        est = estimate_offline(events, camera, config, t0, since_us=int(ends[first_step]) - 1)
+        out = per_ms(est.t_us, est.omega, ends)
+        out[:first_step] = 0.0
+        return out[None]
+
+    num_steps = int(np.asarray(windows[0].omega).shape[0]) if len(windows) else 0
+    done = None if progress is None else lambda n: progress(n, len(windows))
+    return series_per_window(series, windows, num_steps, progress=done)
 
 
 def with_rate(config: OfflineConfig | None, rate_hz: float | None) -> OfflineConfig:

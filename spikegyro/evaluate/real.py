@@ -7,9 +7,10 @@ Each model gives one omega per step (rad/s, camera frame):
 
 - SNN-6 streams over the whole span with its state carried (as ``spikegyro predict``), the output
   of step k stamped at its end;
-- CMax (:func:`spikegyro.cmax.series.predict_stream`, default settings, as
-  ``spikegyro baseline cmax``) estimates every few ms from the events before it, each estimate
-  held until the next;
+- CMax, offline (:func:`spikegyro.cmax.offline.estimate_offline`, as ``spikegyro baseline
+  cmax``): an estimate every 10 ms from the events around it, interpolated to each step's end;
+  beside it "CMax (live)" (:func:`spikegyro.cmax.series.predict_stream`, as ``spikegyro
+  predict --method cmax``): each estimate from the events before it, interpolated likewise;
 - the mean predictor answers a constant: zero, or the training mean of ``--mean-data DIR``.
 
 The gyro (its own rate, rotated into the camera frame with ``--imu-to-camera`` and shifted by
@@ -47,6 +48,7 @@ from spikegyro.baselines.mean import training_mean_omega
 from spikegyro.checks import check_output_dir
 from spikegyro.cmax import series as cmax_series
 from spikegyro.cmax.config import CMaxConfig
+from spikegyro.cmax.offline import estimate_offline
 from spikegyro.cmax.problem import camera_from_attrs
 from spikegyro.cmax.search import estimate_window
 from spikegyro.errors import InputError
@@ -458,10 +460,12 @@ def predict_real(plan: RealPlan, console: Console) -> RealPredictions:
             str(plan.inputs.recording),
             tracker("SNN-6"),
         )
-        t_cmax, w_cmax = cmax_series.predict_stream(
-            events, camera, config, progress=tracker("CMax")
+        offline = estimate_offline(events, camera, t0_us=t0, progress=tracker("CMax, offline"))
+        cmax_ms = cmax_series.per_ms(offline.t_us, offline.omega, plan.ends)
+        t_live, w_live = cmax_series.predict_stream(
+            events, camera, config, progress=tracker("CMax, live")
         )
-        cmax_ms = cmax_series.per_ms(t_cmax, w_cmax, plan.ends)  # as `baseline cmax` writes it
+        live_ms = cmax_series.per_ms(t_live, w_live, plan.ends)
         cmax_win = _cmax_windows(
             events, camera, config, plan.w_starts, plan.w_ends, tracker("CMax per window")
         )
@@ -479,6 +483,7 @@ def predict_real(plan: RealPlan, console: Console) -> RealPredictions:
     per_ms = {
         display_name(payload): ("snn", snn),
         "CMax": ("cmax", cmax_ms),
+        "CMax (live)": ("cmax_live", live_ms),
         "Mean": ("mean", mean_ms),
     }
     return RealPredictions(

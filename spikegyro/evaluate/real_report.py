@@ -49,7 +49,7 @@ def write_tables(
 ) -> None:
     """predictions.csv (per ms) and windows.csv (per window); angular velocity in rad/s."""
     axes = ("wx", "wy", "wz")
-    keys = {"snn": "snn", "cmax": "cmax", "mean": "mean"}
+    keys = {"snn": "snn", "cmax": "cmax", "cmax_live": "cmax_live", "mean": "mean"}
     head = ["t", "scored"] + [f"gyro_{a}" for a in axes]
     cols = [ends / 1e6, scored.astype(int), gt]
     for method, series in per_ms.values():

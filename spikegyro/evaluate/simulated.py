@@ -40,7 +40,7 @@ from spikegyro.evaluate.bins import (
     empty_bins,
     per_bin_metrics,
 )
-from spikegyro.evaluate.compare import METRICS_FORMAT
+from spikegyro.evaluate.compare import METRICS_FORMAT, checkpoint_meta
 from spikegyro.evaluate.console import print_summary, write_json
 from spikegyro.evaluate.kinds import kind_table, per_kind_metrics, window_scene_kinds
 from spikegyro.evaluate.report import (
@@ -125,7 +125,10 @@ def _subject(
 ) -> tuple[tuple[torch.nn.Module, dict[str, Any]] | None, InputSpec, str, dict[str, Any]]:
     """What is evaluated: (model and payload or None for CMax, input spec, name, description)."""
     if checkpoint is None:
-        info = {"method": "cmax", "source": "contrast maximization (spikegyro.cmax)"}
+        info = {
+            "method": "cmax",
+            "source": "contrast maximization (spikegyro.cmax), offline: centred windows",
+        }
         return None, InputSpec(), "CMax", info
     net, payload, name = load_model(checkpoint)
     spec = spec_of(payload)
@@ -133,6 +136,7 @@ def _subject(
         "method": "checkpoint",
         "source": str(checkpoint),
         "checkpoint_model": payload.get("model"),
+        "checkpoint_meta": checkpoint_meta(payload),
         "input": spec.as_dict(),
     }
     return (net, payload), spec, name, info
@@ -194,9 +198,9 @@ def _predict(
     with Progress(console=console, transient=True) as bar:
         task = bar.add_task("predicting", total=len(windows))
         if model_spec is None:
-            from spikegyro.cmax import series
+            from spikegyro.cmax.offline import predict_windows_offline
 
-            return series.predict_windows(
+            return predict_windows_offline(
                 windows, progress=lambda done, _total: bar.update(task, completed=done)
             )
         model, payload = model_spec
@@ -284,7 +288,8 @@ class EvalPlan:
 class EvalPredictions:
     """What the models answered: ``pred`` and ``gt`` (n, T, 3) rad/s (non-finite predictions
     already scored as 0, ``nonfinite`` of them), the mean predictor's omega (3,) rad/s and its
-    source, and the SNN's spike statistics (None for other models)."""
+    source, the SNN's spike statistics (None for other models), and for CMax (scored offline)
+    the live engine's per-ms ω beside it (None for other models)."""
 
     pred: np.ndarray
     gt: np.ndarray
@@ -292,6 +297,7 @@ class EvalPredictions:
     mean_omega: np.ndarray
     mean_source: str
     spikes: dict[str, Any] | None
+    live: np.ndarray | None = None
 
 
 def _check_options(options: EvalOptions) -> tuple[Path | None, str]:
@@ -389,7 +395,22 @@ def predict_evaluation(plan: EvalPlan, console: Console) -> EvalPredictions:
     pred, nonfinite = _finite(raw.astype(np.float64), plan.name, plan.warnings)
     mean_omega, mean_source = _mean_omega(plan.options.data_dir, plan.warnings)
     spikes = _spike_statistics(plan, console)
-    return EvalPredictions(pred, gt, nonfinite, mean_omega, mean_source, spikes)
+    live = _cmax_live(windows, console) if plan.subject is None else None
+    return EvalPredictions(pred, gt, nonfinite, mean_omega, mean_source, spikes, live)
+
+
+def _cmax_live(windows: list[Window], console: Console) -> np.ndarray:
+    """The live (causal) CMax engine's per-ms ω over the windows, reported beside the offline
+    one that the CMax row scores."""
+    from spikegyro.cmax import series
+
+    with Progress(console=console, transient=True) as bar:
+        task = bar.add_task("CMax, live engine", total=len(windows))
+        return series.predict_windows(
+            windows,
+            progress=lambda done, _total: bar.update(task, completed=done),
+            first_step=metrics.EVAL_START_STEP,
+        )
 
 
 def _data_summary(plan: EvalPlan, window_ms: int) -> dict[str, Any]:
@@ -421,6 +442,13 @@ def score_evaluation(plan: EvalPlan, predicted: EvalPredictions) -> dict[str, An
     model_res["nonfinite_predictions"] = predicted.nonfinite
     if predicted.spikes is not None:
         model_res["spikes"] = predicted.spikes
+    if predicted.live is not None:
+        model_res["live"] = {
+            "name": f"{plan.name} (live)",
+            "method": "cmax_live",
+            "source": "contrast maximization (spikegyro.cmax), live: causal windows",
+            **_model_results(predicted.live, gt, kinds, edges),
+        }
     mean_res = {
         "name": "Mean",
         "method": "mean",
@@ -515,9 +543,9 @@ def run_evaluation(
     predicted = predict_evaluation(plan, console)
     result = score_evaluation(plan, predicted)
     write_evaluation(plan, predicted, result)
-    print_summary(
-        console, f"{options.data_dir} / {split}", [result["model"], result["mean"]], plan.warnings
-    )
+    model = result["model"]
+    rows = [model, *([model["live"]] if "live" in model else []), result["mean"]]
+    print_summary(console, f"{options.data_dir} / {split}", rows, plan.warnings)
     console.print(f"wrote {options.out_dir}/metrics.json, predictions.npz, report.html, report.md")
     return result
 
@@ -526,6 +554,7 @@ def _evaluation_report(out_dir: Path, result: dict[str, Any], examples: list[Fig
     model, mean, data = result["model"], result["mean"], result["data"]
     name = model["name"]
     per_bin = {name: model["per_bin"], "Mean": mean["per_bin"]}
+    rows = {name: model, **({model["live"]["name"]: model["live"]} if "live" in model else {})}
     figures.save_figure(
         figures.median_relative_error_per_bin(per_bin, f"{name} vs mean predictor"),
         out_dir / "bins.png",
@@ -545,11 +574,11 @@ def _evaluation_report(out_dir: Path, result: dict[str, Any], examples: list[Fig
         *[f"Warning: {w}" for w in result["warnings"]],
         "## Overall",
         overall_table(
-            {name: model, "Mean": mean},
+            {**rows, "Mean": mean},
             "Overall errors; paper columns: Gehrig et al. 2020, Table I, on their own data "
             "(Sun360 panoramas through ESIM), not ours",
         ),
-        axis_table({name: model["metrics"], "Mean": mean["metrics"]}),
+        axis_table({**{k: v["metrics"] for k, v in rows.items()}, "Mean": mean["metrics"]}),
         "## Per speed",
         bin_table(per_bin),
         FigureRef("Median relative error per true-speed bin (paper Fig. 4).", "bins.png"),
