@@ -72,13 +72,31 @@ def load_run(run_dir: str | os.PathLike) -> dict[str, Any]:
 
 
 def _checkpoint(entry: dict[str, Any]) -> dict[str, Any] | None:
-    """The checkpoint an entry was evaluated from, or None (CMax, mean, official, moved)."""
+    """The checkpoint an entry was evaluated from, or what ``evaluate`` recorded of it when the
+    file has gone (:func:`checkpoint_meta`); None for CMax, the mean and older moved files."""
     if entry.get("method") != "checkpoint":
         return None
     try:
         return read_checkpoint(entry["source"])
     except InputError:
-        return None
+        return entry.get("checkpoint_meta")
+
+
+def checkpoint_meta(payload: dict[str, Any]) -> dict[str, Any]:
+    """A checkpoint without its weights: what :func:`training_info` and :func:`operations` read
+    (model, constructor arguments, input, steps, time, device, precision). ``evaluate`` keeps it
+    in ``metrics.json``, so a report made after the checkpoint has gone (a GPU machine's run)
+    still shows the training budget and the operations."""
+    extra = payload.get("extra", {})
+    kept = {key: extra[key] for key in ("step", "elapsed_s", "before") if key in extra}
+    config = extra.get("config") or {}
+    kept["config"] = {key: config[key] for key in ("device", "amp") if key in config}
+    return {
+        "model": payload.get("model"),
+        "model_kwargs": payload.get("model_kwargs") or {},
+        "input": payload.get("input"),
+        "extra": kept,
+    }
 
 
 def training_info(payload: dict[str, Any] | None) -> dict[str, Any]:
