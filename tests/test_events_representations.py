@@ -112,3 +112,27 @@ def test_frames_of_no_events_are_zero() -> None:
     empty = np.array([], dtype=np.int64)
     frames = accumulated_frames(empty, empty, empty, height=2, width=3)
     assert frames.shape == (2, 2, 3) and not frames.any()
+
+
+def test_voxel_grids_of_consecutive_spans_equal_one_voxel_grid_per_span():
+    """The one-pass NumPy kernel against the torch formula span by span, to the bit: events on
+    span boundaries, at a span's last microsecond, before the first span and after the last."""
+    from spikegyro.events.representations import voxel_grids
+
+    rng = np.random.default_rng(3)
+    n, span, start = 5000, 20_000, 1_000_000
+    edges = start + span * np.arange(6)
+    t = np.sort(np.concatenate([rng.integers(start - 500, edges[-1] + 500, n), edges, edges - 1]))
+    x, y = rng.integers(0, 24, t.size), rng.integers(0, 16, t.size)
+    p = rng.integers(0, 2, t.size)
+    grids = voxel_grids(x, y, t, p, height=16, width=24, num_bins=5, t_start_us=start,
+                        span_us=span, count=5)  # fmt: skip
+    for j in range(5):
+        a = start + j * span
+        inside = (t >= a) & (t < a + span)
+        expected = voxel_grid(x[inside], y[inside], t[inside], p[inside], height=16, width=24,
+                              num_bins=5, t_start_us=a, t_end_us=a + span)  # fmt: skip
+        np.testing.assert_array_equal(grids[j], expected)
+    assert float(grids.sum()) == pytest.approx(
+        float((2 * p - 1)[(t >= start) & (t < start + 5 * span)].sum()), abs=1e-2
+    )

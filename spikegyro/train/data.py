@@ -40,7 +40,7 @@ from spikegyro.errors import InputError
 from spikegyro.events import binning_torch
 from spikegyro.events.core import EventArray, Recording
 from spikegyro.events.io import Hdf5Index, index_hdf5, read_hdf5_span, read_recording
-from spikegyro.events.representations import accumulated_frames, spike_tensor, voxel_grid
+from spikegyro.events.representations import accumulated_frames, spike_tensor, voxel_grids
 
 BIN_US = 1000
 SPLITS = ("train", "val", "test")
@@ -305,18 +305,20 @@ def encode_window(window: Window, input_spec: InputSpec | dict[str, Any]) -> tor
             )
         )  # fmt: skip
     sub_us = spec.target_ms * BIN_US
+    count = spec.window_ms // spec.target_ms
+    if spec.representation == "voxel":  # one pass over the events for all sub-windows
+        return torch.from_numpy(
+            voxel_grids(
+                ev.x, ev.y, ev.t, ev.p, height=height, width=width, num_bins=spec.num_bins,
+                t_start_us=window.t_start_us, span_us=sub_us, count=count,
+            )
+        )  # fmt: skip
     planes = []
-    for j in range(spec.window_ms // spec.target_ms):
-        a = window.t_start_us + j * sub_us
-        sub = ev.slice_time(a, a + sub_us)
-        if spec.representation == "voxel":
-            plane = voxel_grid(
-                sub.x, sub.y, sub.t, sub.p, height=height, width=width,
-                num_bins=spec.num_bins, t_start_us=a, t_end_us=a + sub_us,
-            )  # fmt: skip
-        else:
-            plane = accumulated_frames(sub.x, sub.y, sub.p, height=height, width=width)
-        planes.append(torch.from_numpy(plane))
+    for j in range(count):
+        sub = ev.slice_time(window.t_start_us + j * sub_us, window.t_start_us + (j + 1) * sub_us)
+        planes.append(
+            torch.from_numpy(accumulated_frames(sub.x, sub.y, sub.p, height=height, width=width))
+        )
     return torch.stack(planes)
 
 
