@@ -9,12 +9,14 @@ background load:
 
 - the taps of ε and ν per layer (the truncation rule of :mod:`spikegyro.snn.kernels`);
 - streaming (what ``predict`` runs): :class:`spikegyro.stream.stateful.StreamingSNN` on one
-  thread over simulated 240x180 test sequences, the same for every f, as a real-time factor;
+  thread over simulated 240x180 test sequences, the same for every f, as a real-time factor
+  by wall time and by the process's CPU time (which waiting for a busy core does not count),
+  and the spikes per ms of each layer (the work depends on them);
 - the training step (forward + backward + Adam, ``spikegyro.train.throughput.train_step``) on the
   8 windows of ``bench/train_step.py`` (100 ms, 240x180), on the event-driven engine (2 threads,
   the cut ``train --compute sparse`` uses) and on the dense torch path (2 threads), per window:
-  the paper's fixed τ, then learned τ at each f. The median of ``--repeats`` steps after one
-  warm-up step each.
+  the paper's fixed τ, then learned τ at each f, by wall and CPU time. The median of
+  ``--repeats`` steps after one warm-up step each.
 
 Ratios are against the fixed-τ network at f = 1 measured in the same run.
 
@@ -62,34 +64,40 @@ def kernel_table(models: dict[str, SNN6]) -> None:
         print(f"  {name:<15} " + " ".join(taps) + f"  readout {model.fc.srm_kernel.numel()}")
 
 
-def streaming(models: dict[str, SNN6], sequences: list) -> None:
-    """Real-time factor of the one-thread streaming engine over the sequences, per network."""
+def streaming(models: dict[str, SNN6], sequences: list, repeats: int) -> None:
+    """Real-time factor of the one-thread streaming engine over the sequences, per network, by
+    wall and by CPU time (the median of ``repeats`` interleaved passes)."""
     engines = {
         name: StreamingSNN(spec_from_model(model, (2, 180, 240)), threads=1)
         for name, model in models.items()
     }
     for engine in engines.values():  # compile (or load the cache)
         engine.run(np.zeros(1, np.int64), np.array([0, 1, 1]))
-    walls = dict.fromkeys(engines, 0.0)
+    times: dict[str, list[tuple[float, float]]] = {name: [] for name in engines}
     spikes = dict.fromkeys(engines, 0)
-    steps = 0
+    lists = []
     for rec in sequences:
         ev = rec.events
         duration = int(ev.t[-1] // 1000) + 1
         index = (ev.y.astype(np.int64) * 240 + ev.x) * 2 + ev.p
-        offsets = np.searchsorted(ev.t // 1000, np.arange(duration + 1))
-        steps += duration
+        lists.append((index, np.searchsorted(ev.t // 1000, np.arange(duration + 1))))
+    steps = sum(offsets.size - 1 for _, offsets in lists)
+    for _ in range(repeats):
         for name, engine in engines.items():
-            engine.reset()
-            start = time.perf_counter()
-            engine.run(index, offsets)
-            walls[name] += time.perf_counter() - start
-            spikes[name] = spikes[name] + engine.spike_counts
-    print(f"streaming, 1 thread, {len(sequences)} sequences, {steps} ms in all:")
-    for name, wall in walls.items():
+            start, cpu = time.perf_counter(), time.process_time()
+            for index, offsets in lists:
+                engine.reset()
+                engine.run(index, offsets)
+                spikes[name] = spikes[name] + engine.spike_counts / repeats
+            times[name].append((time.perf_counter() - start, time.process_time() - cpu))
+    medians = {n: [statistics.median(v[k] for v in t) for k in (0, 1)] for n, t in times.items()}
+    base = medians["fixed f=1"]
+    print(f"streaming, 1 thread, {len(sequences)} sequences, {steps} ms in all (median of "
+          f"{repeats}): real-time factor by wall and by CPU time")  # fmt: skip
+    for name, (wall, cpu) in medians.items():
         rates = " ".join(f"{s / steps:7.0f}" for s in spikes[name])
-        print(f"  {name:<15} {steps / 1000 / wall:6.2f}x real time  time x"
-              f"{wall / walls['fixed f=1']:5.2f}  spikes/ms L1..L5 {rates}")  # fmt: skip
+        print(f"  {name:<15} {steps / 1000 / wall:6.2f}x  CPU {steps / 1000 / cpu:6.2f}x "
+              f"(CPU time x{cpu / base[1]:5.2f})  spikes/ms L1..L5 {rates}")  # fmt: skip
 
 
 def step_of(model: SNN6, compute: str, x, y) -> Callable[[], None]:
@@ -139,7 +147,7 @@ def main() -> None:
     learned = {f"learned f={f:g}": f for f in args.factors}
     models = {"fixed f=1": network(None)} | {n: network(f) for n, f in learned.items()}
     kernel_table(models)
-    streaming(models, simulated_sequences(args.sequences, args.duration_ms, 0))
+    streaming(models, simulated_sequences(args.sequences, args.duration_ms, 0), args.repeats)
     inputs, y = windows()
     training({"fixed f=1": None, **learned}, "sparse", inputs, y, args.repeats)
     dense = {f"learned f={f:g}": f for f in args.dense_factors}

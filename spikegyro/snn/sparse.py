@@ -34,7 +34,7 @@ from torch import nn
 
 from spikegyro.snn.functional import surrogate_half_width
 from spikegyro.snn.layers import SRMConv
-from spikegyro.snn.sparse_backward import layer_backward, surrogate_pdf
+from spikegyro.snn.sparse_backward import layer_backward, surrogate_pdf, tau_gradient
 from spikegyro.snn.sparse_forward import (
     Buffers,
     alpha_constants,
@@ -229,16 +229,6 @@ def _pool_deltas(
                 for cell in range(cells):
                     total += pooling[cell, pixel] * grad[c * cells + cell, t]
                 u[i] = surrogate_pdf(u[i], surrogate) * total
-
-
-def _tau_gradient(delta: np.ndarray, sensitivity: np.ndarray) -> tuple[float, float]:
-    """(∂L/∂τs, ∂L/∂τr) of a layer from δ = ∂L/∂u at its active pairs and ∂u/∂τs, ∂u/∂τr there
-    (interleaved; empty where τ is not learned: zeros), summed in float64. Elsewhere ρ(u) = 0,
-    so δ = 0 and the pairs contribute nothing."""
-    if not sensitivity.size:
-        return 0.0, 0.0
-    pairs = sensitivity.reshape(-1, 2).astype(np.float64)
-    return tuple(float(v) for v in delta.astype(np.float64) @ pairs)
 
 
 def _element_inputs(x: torch.Tensor) -> tuple[list[np.ndarray | Lists], list[float]]:
@@ -549,7 +539,7 @@ class _Plan:
         start = time.thread_time()
         if i == len(self.layers) - 1:
             _pool_deltas(element.active[i], grad_pooled, self.pooling, layer.surrogate)
-        element.tau_grads.append(_tau_gradient(element.active[i][2], element.tau_sensitivity[i]))
+        element.tau_grads.append(tau_gradient(element.active[i][2], element.tau_sensitivity[i]))
         lower = max(i - 1, 0)  # the layer below, whose δ are wanted above ``first``
         wanted = i > self.first
         below = element.active[lower] if wanted else tuple(a[:0] for a in element.active[i])

@@ -47,6 +47,21 @@ def surrogate_pdf(u: float, surrogate: np.ndarray) -> float:
     return surrogate[1] * np.exp(surrogate[2] * abs(u - surrogate[0]))
 
 
+@numba.njit(cache=True, nogil=True)
+def tau_gradient(delta: np.ndarray, sensitivity: np.ndarray) -> tuple[float, float]:
+    """(∂L/∂τs, ∂L/∂τr) of a layer: Σ_j δ_j·∂u_j/∂τs and Σ_j δ_j·∂u_j/∂τr over its active pairs
+    j, from δ = ∂L/∂u and the derivatives interleaved in ``sensitivity`` ([2j], [2j + 1]), as
+    :func:`spikegyro.snn.sparse_forward.layer_forward` records them with learned τ (empty:
+    zeros); summed in float64. Elsewhere ρ(u) = 0, so δ = 0 and the pairs add nothing."""
+    grad_s, grad_r = 0.0, 0.0
+    if sensitivity.size:
+        for j in range(delta.size):
+            d = np.float64(delta[j])
+            grad_s += d * sensitivity[2 * j]
+            grad_r += d * sensitivity[2 * j + 1]
+    return grad_s, grad_r
+
+
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _enter(
     state: np.ndarray,
