@@ -177,3 +177,36 @@ def test_real_windows_draw_reproducibly_and_hold_out_the_end(simulated, tmp_path
         assert [s.step for s in subs] == [39] and subs[0].teacher_gain > 1.2
     held_out = windows.validation()
     assert held_out and all(w.t_start_us >= train_end for w, _ in held_out)
+
+
+def test_adapt_trains_on_a_real_recording_and_writes_the_best_weights(simulated, tmp_path):
+    """`adapt` end to end on a recording without a gyro (the simulator's, as a text file): a
+    step-0 row with the starting weights' gain, training steps with a finite loss, validations,
+    and a checkpoint that loads."""
+    import csv
+
+    from spikegyro.models.registry import read_checkpoint
+    from spikegyro.train.adapt import AdaptSettings, adapt, adapt_config, run_dir_of
+
+    events, _ = simulated
+    rec = _text_recording(tmp_path / "rec.txt", events)
+    out = tmp_path / "cam.pt"
+    settings = AdaptSettings([rec], "200,200,120,90", "snn6", out, max_minutes=5, batch_size=2)
+    config = adapt_config(settings)
+    short = {
+        "window_ms": 50,
+        "train_window_ms": 50,
+        "loss_start_step": 30,
+        "train_loss_start_step": 30,
+        "real_holdout": 0.5,
+    }  # a 118 ms recording
+    config = type(config)(**{**config.as_dict(), "sensor": (240, 180), "iterations": 4,
+                             "val_every": 2, "log_every": 1, **short})  # fmt: skip
+    adapted = adapt(settings, config)
+    rows = list(csv.DictReader((run_dir_of(out) / "log.csv").open()))
+    assert rows[0]["step"] == "0" and float(rows[0]["val_real_gain"]) > 0
+    assert [r["step"] for r in rows if r["val_real_gain"]] == ["0", "2", "4"]
+    assert all(np.isfinite(float(r["loss"])) for r in rows[1:])
+    assert adapted.result.steps == 4
+    assert adapted.gain_end >= adapted.gain_start
+    assert read_checkpoint(out)["model"] == "snn6"
