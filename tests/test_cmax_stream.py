@@ -16,7 +16,8 @@ from typer.testing import CliRunner
 from spikegyro.cli import app
 from spikegyro.cmax.config import CMaxConfig
 from spikegyro.cmax.live import CMaxEstimator
-from spikegyro.cmax.windows import EventBuffer, HotPixels, WindowPolicy
+from spikegyro.cmax.problem import base_scale
+from spikegyro.cmax.windows import EventBuffer, HotPixels, Thinning, WindowPolicy
 from spikegyro.events.calib import PinholeCamera
 from spikegyro.events.core import EventArray, GyroTrace, Recording
 from spikegyro.events.imu import fit_imu_to_camera, gyro_frame, imu_rotation, rotation_text
@@ -26,6 +27,36 @@ from spikegyro.stream.writer import read_predictions
 
 CAMERA = PinholeCamera(WIDTH, HEIGHT, F, F, WIDTH / 2, HEIGHT / 2)
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "real"
+
+
+def test_base_scale_bins_large_sensors_to_the_pixel_budget() -> None:
+    assert base_scale(240, 180, 100_000) == 1 and base_scale(346, 260, 100_000) == 1
+    assert base_scale(640, 480, 100_000) == 2  # 320 x 240
+    assert base_scale(1280, 720, 100_000) == 4  # 320 x 180; 3 would leave 427 x 240
+    assert base_scale(1280, 720, 0) == 1
+
+
+def test_thinning_keeps_the_rate_and_does_not_depend_on_batching() -> None:
+    rng = np.random.default_rng(3)
+    # 20 ms at 0.5 M events/s, then 50 ms at 8 M events/s, then 30 ms at 0.5 M again.
+    t = np.sort(np.concatenate([rng.integers(0, 20_000, 10_000),
+                                rng.integers(20_000, 70_000, 400_000),
+                                rng.integers(70_000, 100_000, 15_000)]))  # fmt: skip
+    whole = Thinning(2e6).keep(t)
+    thin = Thinning(2e6)
+    cuts = np.sort(rng.integers(0, len(t), 40))
+    parts = [thin.keep(t[a:b]) for a, b in zip([0, *cuts], [*cuts, len(t)], strict=True)]
+    offsets = [0, *cuts]
+    batched = np.concatenate([(np.arange(b - a) if p is None else p) + a for p, a, b in
+                              zip(parts, offsets, [*cuts, len(t)], strict=True)])  # fmt: skip
+    np.testing.assert_array_equal(whole, batched)
+    kept = t[whole]
+    # Below the rate every event stays; above it about 2 M events/s (the first 10 ms of the
+    # burst are kept whole: the count of the slot before decides).
+    assert (np.diff(kept[kept < 20_000]) >= 0).all() and (kept < 20_000).sum() == 10_000
+    burst = ((kept >= 30_000) & (kept < 70_000)).sum() / 0.04
+    assert 1.5e6 <= burst <= 2.05e6  # every k-th event, k rounded up: at most the rate
+    assert Thinning(0).keep(t) is None
 
 
 def test_window_policy_counts_motion_bounds_and_fixed() -> None:

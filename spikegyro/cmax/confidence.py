@@ -74,25 +74,20 @@ def _judge(
 ) -> list[float]:
     """Agreements of halves ``a`` and ``b`` (each judged only where it shows structure)."""
     sigma, scale = config.sigma_px, test.scale
-    own, flat = [], []
-    for half in (a, b):
-        # From ω and from 0: a half that another rotation moves may lie beyond ω's basin.
-        found = max(
-            (refine(half, start, scale, config, test.iterations) for start in (omega, 0 * omega)),
-            key=lambda r: r.contrast,
-        )
-        own.append(found)
-        flat.append(half.contrast(np.zeros(3), scale, sigma)[0])
     out = []
-    for k, half in enumerate((a, b)):
-        best, zero = own[k].contrast, flat[k]
+    for half in (a, b):
+        zero = half.contrast(np.zeros(3), scale, sigma)[0]
         if len(half) < test.min_events or not zero > 0:
             continue
-        at_omega = half.contrast(omega, scale, sigma)[0] / zero
+        at_omega = half.contrast(omega, scale, sigma)[0]
+        # Refined from ω or from 0, whichever sharpens the half more: a half that another
+        # rotation moves may lie beyond ω's basin.
+        start = omega if at_omega >= zero else 0 * omega
+        best = refine(half, start, scale, config, test.iterations).contrast
         if best < test.min_gain * zero:
-            out.append((math.nan, at_omega))
+            out.append((math.nan, at_omega / zero))
             continue
-        out.append((at_omega * zero / best, at_omega))
+        out.append((at_omega / best, at_omega / zero))
     return out
 
 

@@ -75,6 +75,13 @@ class CMaxConfig:
         starts: how many of the best grid points are refined (besides zero and the warm start).
         search_events: events (random subsample) used to refine and compare the starts.
         seed: seed of the event subsampling.
+        max_pixels: the objective's image at pyramid scale 1 has at most this many pixels:
+            larger sensors are binned by a whole factor (``base_scale`` in
+            :mod:`spikegyro.cmax.problem`; 1 at 240x180 and 346x260, 4 at 1280x720), and
+            ``target_px`` and ``min_motion_px`` count binned pixels; 0: the sensor's pixels.
+        ingest_rate: a stream keeps at most about this many events per second of event time
+            (each 10 ms keeps every k-th event, k from the previous 10 ms's count), so that
+            per-event work stops growing with the rate; 0: every event.
         one_rotation: the test of ``ill_posed`` bit 4 (:mod:`spikegyro.cmax.confidence`; None:
             not run).
     """
@@ -100,4 +107,6 @@ class CMaxConfig:
     starts: int = 3
     search_events: int = 4000
     seed: int = 0
+    max_pixels: int = 100_000
+    ingest_rate: float = 1e6
     one_rotation: OneRotationTest | None = field(default_factory=OneRotationTest)

@@ -26,9 +26,9 @@ import numpy as np
 
 from spikegyro.cmax.confidence import not_one_rotation
 from spikegyro.cmax.config import CMaxConfig, Progress
-from spikegyro.cmax.problem import Intrinsics, Problem, default_camera, ray_table
+from spikegyro.cmax.problem import Intrinsics, Problem, base_scale, default_camera, ray_table
 from spikegyro.cmax.search import refine, search
-from spikegyro.cmax.windows import EventBuffer, HotPixels, pixel_speed, rms_radius
+from spikegyro.cmax.windows import EventBuffer, HotPixels, Thinning, pixel_speed, rms_radius
 from spikegyro.events.core import EventArray
 from spikegyro.events.windows import BIN_US
 from spikegyro.stream.estimator import (
@@ -79,6 +79,7 @@ class CMaxEstimator:
         self._best_gain = 0.0
         self._last_t: int | None = None
         self._buffer = EventBuffer()
+        self._thinning = Thinning(self.config.ingest_rate)
         self._hot: HotPixels | None = None
         self._rays: tuple[np.ndarray, np.ndarray] | None = None
         self._sensor: tuple[int, int] | None = None
@@ -158,13 +159,16 @@ class CMaxEstimator:
         if self._last_t is not None and events.t[0] < self._last_t:
             raise ValueError("events must arrive in time order")
         self._last_t = int(events.t[-1])
+        x, y, t = events.x, events.y, events.t
+        kept = self._thinning.keep(t)
+        if kept is not None:
+            x, y, t = x[kept], y[kept], t[kept]
         xs, ys = self._rays
-        pix = events.y.astype(np.int32) * events.width + events.x.astype(np.int32)
+        pix = y.astype(np.int32) * events.width + x.astype(np.int32)
         bx, by = xs.ravel()[pix], ys.ravel()[pix]
         ok = np.isfinite(bx) & np.isfinite(by)
         self._seen += len(ok)
         self._in_view += int(ok.sum())
-        t = events.t
         if not ok.all():
             pix, bx, by, t = pix[ok], bx[ok], by[ok], t[ok]
         # Dither each event within its pixel (once, so every estimate sees the same rays):
@@ -187,6 +191,7 @@ class CMaxEstimator:
         self._rays = ray_table(key, width, height)
         self._intrinsics = np.array([cam.fx, cam.fy, cam.cx, cam.cy], dtype=np.float64)
         self._radius = rms_radius(width, height, cam.cx, cam.cy)
+        self._base = base_scale(width, height, self.config.max_pixels)
         self._hot = HotPixels(width * height, self.config.hot_pixel_factor)
         if self.t0_us is None:
             self.t0_us = int(events.t[0]) // BIN_US * BIN_US
@@ -230,8 +235,8 @@ class CMaxEstimator:
         t = buf.times()
         i1 = int(np.searchsorted(t, t_us, side="right"))
         speed = None
-        if self._omega is not None:
-            speed = pixel_speed(self._omega, float(self._intrinsics[0]), self._radius)
+        if self._omega is not None:  # in the objective's (binned) pixels
+            speed = self._speed(self._omega)
         i0 = config.window.start(t, i1, t_us, speed, searching)
         index = np.arange(buf.start + i0, buf.start + i1)
         index = index[~self._hot.hot[buf.pix[index]]]
@@ -252,7 +257,7 @@ class CMaxEstimator:
         config, flags = self.config, 0
         if count < config.window.min_events and config.window.fixed_events <= 0:
             flags |= ILL_FEW_EVENTS
-        moved = pixel_speed(omega, float(self._intrinsics[0]), self._radius) * span_us * 1e-6
+        moved = self._speed(omega) * span_us * 1e-6
         if moved < config.min_motion_px:
             flags |= ILL_LITTLE_MOTION
         test = config.one_rotation
@@ -262,6 +267,10 @@ class CMaxEstimator:
         if self._not_one and moved >= config.min_motion_px:
             flags |= ILL_NOT_ONE_ROTATION
         return flags
+
+    def _speed(self, omega: np.ndarray) -> float:
+        """Image speed (px/s of the objective's binned image) under ω (rad/s)."""
+        return pixel_speed(omega, float(self._intrinsics[0]), self._radius) / self._base
 
     def _update_doubt(self, gain: float, flags: int) -> None:
         """The share of the search interval to wait before the next search. An ill-posed
@@ -295,8 +304,9 @@ class CMaxEstimator:
         dt = (t_us - buf.t[index]) * 1e-6
         width, height = self._sensor
         problem = Problem(
-            buf.bx[index], buf.by[index], dt, np.ones(len(index)), self._intrinsics, width, height
-        )
+            buf.bx[index], buf.by[index], dt, np.ones(len(index)), self._intrinsics, width, height,
+            self._base,
+        )  # fmt: skip
         if searching:
             found = search(problem, config, self._omega, grid=True, rng=self._rng)
             self._last_search_us = t_us

@@ -33,7 +33,7 @@ import numpy as np
 from spikegyro.cmax.confidence import not_one_rotation
 from spikegyro.cmax.config import CMaxConfig, Progress
 from spikegyro.cmax.files import camera_for_file
-from spikegyro.cmax.problem import Intrinsics, Problem, default_camera, ray_table
+from spikegyro.cmax.problem import Intrinsics, Problem, base_scale, default_camera, ray_table
 from spikegyro.cmax.search import Refined, search
 from spikegyro.cmax.series import per_ms
 from spikegyro.cmax.windows import hot_pixel_mask, pixel_speed, rms_radius
@@ -134,20 +134,21 @@ class _Engine:
         self.rays, self.config, self.sensor = rays, cfg, sensor
         self.intrinsics = np.array([camera.fx, camera.fy, camera.cx, camera.cy])
         self.radius = rms_radius(*sensor, camera.cx, camera.cy)
+        self.base = base_scale(*sensor, cfg.base.max_pixels)
         self.omega: np.ndarray | None = None
         self.searched_us: int | None = None
         self.best_gain = 0.0
         self.rng = np.random.default_rng(cfg.base.seed)
 
-    def speed(self) -> float | None:
-        """Image speed (px/s) of the previous estimate."""
-        if self.omega is None:
+    def speed(self, omega: np.ndarray | None) -> float | None:
+        """Image speed (px/s of the objective's binned image) under ω (rad/s; None: none)."""
+        if omega is None:
             return None
-        return pixel_speed(self.omega, float(self.intrinsics[0]), self.radius)
+        return pixel_speed(omega, float(self.intrinsics[0]), self.radius) / self.base
 
     def estimate(self, t_us: int) -> tuple | None:
         """One estimate at ``t_us`` (a row of ``Estimates``), or None without events."""
-        index = _window(self.rays, t_us, self.speed(), self.config)
+        index = _window(self.rays, t_us, self.speed(self.omega), self.config)
         base = self.config.base
         if len(index) < max(base.min_events, 2):
             return None
@@ -155,7 +156,7 @@ class _Engine:
         dt = (t_us - t) * 1e-6
         problem = Problem(
             self.rays.bx[index], self.rays.by[index], dt, np.ones(len(index)), self.intrinsics,
-            *self.sensor,
+            *self.sensor, self.base,
         )  # fmt: skip
         found = self._maximize(problem, t_us)
         flat = problem.contrast(np.zeros(3), 1, base.sigma_px)[0]
@@ -193,7 +194,7 @@ class _Engine:
         config, flags = self.config, 0
         if len(problem) < config.min_events and len(problem) < config.base.max_events:
             flags |= ILL_FEW_EVENTS
-        moved = pixel_speed(omega, float(self.intrinsics[0]), self.radius) * span_us * 1e-6
+        moved = self.speed(omega) * span_us * 1e-6
         if moved < config.base.min_motion_px:
             flags |= ILL_LITTLE_MOTION
         if not_one_rotation(problem, omega, moved, config.base, self.rng):

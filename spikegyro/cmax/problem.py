@@ -34,9 +34,24 @@ class Intrinsics(Protocol):
     cy: float
 
 
+def base_scale(width: int, height: int, max_pixels: int) -> int:
+    """The smallest whole binning factor ``s`` that leaves a ``width`` x ``height`` image at most
+    ``max_pixels`` pixels, ``ceil(width / s) * ceil(height / s)`` (1 when ``max_pixels <= 0``).
+
+    The objective's cost is mostly its image (two blurs and a variance per evaluation), so a
+    megapixel sensor's events are voted into an image binned to about a DAVIS240's size: the
+    contrast peak then has the same shape in binned pixels whatever the sensor.
+    """
+    s = 1
+    while max_pixels > 0 and math.ceil(width / s) * math.ceil(height / s) > max_pixels:
+        s += 1
+    return s
+
+
 @dataclass(frozen=True)
 class Problem:
-    """One window ready for warping: rays, times to t_ref, and the pinhole to project with."""
+    """One window ready for warping: rays, times to t_ref, and the pinhole to project with;
+    ``base``: the binning of the image at pyramid scale 1 (:func:`base_scale`)."""
 
     bx: np.ndarray  # (N,) ray x/z
     by: np.ndarray  # (N,) ray y/z
@@ -45,6 +60,11 @@ class Problem:
     intrinsics: np.ndarray  # fx, fy, cx, cy
     width: int
     height: int
+    base: int = 1
+
+    def level(self, scale: int) -> int:
+        """The image's downscale factor from the sensor's pixels at pyramid ``scale``."""
+        return scale * self.base
 
     def __len__(self) -> int:
         return len(self.dt)
@@ -60,14 +80,16 @@ class Problem:
 
     @property
     def px_per_rad_s(self) -> float:
-        """Image displacement (px) that 1 rad/s causes at the window's ends: ω's natural scale."""
+        """Image displacement (sensor px) that 1 rad/s causes at the window's ends: ω's natural
+        scale."""
         half_span = float(np.abs(self.dt).max()) if len(self) else 0.0
         return max(half_span, 1e-4) * float(self.intrinsics[0])
 
     def contrast(
         self, omega: np.ndarray, scale: int, sigma: float, gradient: bool = False
     ) -> tuple[float, np.ndarray]:
-        """IWE variance at ``1/scale`` resolution (and its gradient in 1/(rad/s))."""
+        """IWE variance at pyramid ``scale`` (and its gradient in 1/(rad/s))."""
+        level = self.level(scale)
         return iwe.contrast(
             self.bx,
             self.by,
@@ -75,9 +97,9 @@ class Problem:
             self.weights,
             np.asarray(omega, dtype=np.float64),
             self.intrinsics,
-            float(scale),
-            math.ceil(self.width / scale),
-            math.ceil(self.height / scale),
+            float(level),
+            math.ceil(self.width / level),
+            math.ceil(self.height / level),
             iwe.gaussian_taps(sigma),
             gradient,
         )
@@ -149,4 +171,5 @@ def make_problem(
         intrinsics,
         events.width,
         events.height,
+        base_scale(events.width, events.height, config.max_pixels),
     )

@@ -38,7 +38,7 @@ def _grid_starts(problem: Problem, config: CMaxConfig) -> list[np.ndarray]:
     reach = min(math.radians(config.grid_max_dps), config.grid_max_px / px)
     axis = np.linspace(-reach, reach, config.grid_points)
     grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-    scale = config.levels[0]
+    scale = problem.level(config.levels[0])
     spacing_px = (axis[1] - axis[0]) * px / scale
     # Wide enough that a sharp peak between grid points still lifts its neighbours.
     sigma = max(config.sigma_px, 0.5 * spacing_px)
@@ -152,12 +152,13 @@ def refine(
 ) -> Refined:
     """Maximize the contrast at one pyramid level from ``omega`` (rad/s).
 
-    The variable is ω in pixels of displacement at the window's far end (at this level) and the
+    The variable is ω in pixels of displacement at the window's far end (in this level's
+    pixels, binning included) and the
     objective is normalized by its starting value, so steps, tolerances and curvature mean the
     same in any window: the first step is half a pixel (without ``inv_hessian``), and a step
     under ``xtol_px`` ends the search.
     """
-    px = problem.px_per_rad_s / scale
+    px = problem.px_per_rad_s / problem.level(scale)
     omega = np.asarray(omega, dtype=np.float64)
     norm, grad = problem.contrast(omega, scale, config.sigma_px, gradient=True)
     if not norm > 0:

@@ -146,6 +146,49 @@ class EventBuffer:
         return self.t[self.start : self.end]
 
 
+class Thinning:
+    """Keeps at most about ``rate`` events per second of a stream, so that the work per event
+    (rays, buffering, hot-pixel counts) stops growing with the event rate.
+
+    Time is cut into slots of ``slot_us``; the events of a slot keep every k-th event of the
+    stream (by its index in the stream), k = ceil(events of the previous slot / the slot's
+    share of ``rate``), 1 after an empty slot. It depends on the events only, not on how they
+    were batched, and keeps the same share of every part of a slot, as the evenly thinned
+    windows do. A rate <= 0 keeps every event.
+    """
+
+    def __init__(self, rate: float, slot_us: int = 10_000) -> None:
+        self.budget = rate * slot_us / 1e6
+        self.slot_us = slot_us
+        self.slot: int | None = None
+        self.count = 0  # events of the current slot so far
+        self.previous = 0  # events of the slot before it
+        self.seen = 0  # events so far: the stream index of the next one
+
+    def keep(self, t_us: np.ndarray) -> np.ndarray | None:
+        """Indices of the events to keep of a batch with times ``t_us`` (µs, sorted, after all
+        earlier batches); None: all of them."""
+        n = len(t_us)
+        if self.budget <= 0 or n == 0:
+            self.seen += n
+            return None
+        slots = t_us // self.slot_us
+        cuts = np.flatnonzero(np.diff(slots)) + 1
+        parts = []
+        for a, b in zip([0, *cuts.tolist()], [*cuts.tolist(), n], strict=True):
+            slot = int(slots[a])
+            if slot != self.slot:
+                follows = self.slot is not None and slot == self.slot + 1
+                self.previous, self.slot, self.count = (self.count if follows else 0), slot, 0
+            k = max(1, math.ceil(self.previous / self.budget))
+            first = a + (-(self.seen + a)) % k  # the first index in [a, b) that k divides
+            parts.append(np.arange(first, b, k))
+            self.count += b - a
+        self.seen += n
+        kept = np.concatenate(parts)
+        return None if len(kept) == n else kept
+
+
 class HotPixels:
     """Streaming hot-pixel detector: per-pixel event counts decaying with ``tau_s``.
 
@@ -174,18 +217,21 @@ class HotPixels:
         if self.factor <= 0:
             return
         if self._decayed_at is None:
-            self._decayed_at = self._checked_at = t_last_us
-        elapsed = t_last_us - self._decayed_at
-        if elapsed >= 0.02 * self.tau_us:  # decaying every batch would cost O(pixels) each
-            self.counts *= math.exp(-elapsed / self.tau_us)
             self._decayed_at = t_last_us
-        self.counts += np.bincount(pix, minlength=len(self.counts))
-        if t_last_us - self._checked_at >= self.every_us or not self.hot.any():
-            active = self.counts[self.counts > 0.5]
-            if len(active):
-                threshold = max(self.min_count, self.factor * float(np.percentile(active, 95)))
-                self.hot = self.counts > threshold
-            self._checked_at = t_last_us
+        # Counts are kept in units of their last decay: a batch adds exp(its age / tau), and the
+        # array decays only when the threshold is checked. Each of those costs O(pixels), a
+        # megapixel's worth: every batch would cost more than the rest of the engine.
+        weight = math.exp((t_last_us - self._decayed_at) / self.tau_us)
+        np.add.at(self.counts, pix, weight)  # O(batch), where a bincount costs O(pixels)
+        if self._checked_at is not None and t_last_us - self._checked_at < self.every_us:
+            return
+        self.counts *= 1.0 / weight
+        self._decayed_at = self._checked_at = t_last_us
+        active = self.counts[self.counts > 0.5]
+        if len(active):
+            sample = active[:: max(1, len(active) // 20_000)]  # an even sample's percentile
+            threshold = max(self.min_count, self.factor * float(np.percentile(sample, 95)))
+            self.hot = self.counts > threshold
 
 
 def hot_pixel_mask(
