@@ -21,5 +21,8 @@ and to evaluate a checkpoint on the fixed test windows::
 Modules: :mod:`~spikegyro.train.data` (windows and encodings), :mod:`~spikegyro.train.augment`
 (flips and time inversion with exact labels), :mod:`~spikegyro.train.loss`,
 :mod:`~spikegyro.train.presets` (``paper`` and ``cpu``), :mod:`~spikegyro.train.loop`,
-:mod:`~spikegyro.train.distributed` (DDP under torchrun), :mod:`~spikegyro.train.infer`.
+:mod:`~spikegyro.train.distributed` (DDP under torchrun), :mod:`~spikegyro.train.infer`;
+learning from real events without a gyro: :mod:`~spikegyro.train.selfsup` (the contrast loss),
+:mod:`~spikegyro.train.real` (real recordings as unlabeled windows) and
+:mod:`~spikegyro.train.adapt` (``spikegyro adapt``).
 """
