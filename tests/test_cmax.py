@@ -11,12 +11,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from spikegyro.cmax import iwe as cmax_iwe
 from spikegyro.cmax.config import CMaxConfig
+from spikegyro.cmax.live import CMaxEstimator
 from spikegyro.cmax.problem import default_camera, make_problem
-from spikegyro.cmax.search import estimate_window, maximize_bfgs
+from spikegyro.cmax.search import estimate_window, maximize_bfgs, refine, search
 from spikegyro.cmax.series import (
     SIMULATED_CONFIG,
     hold_per_ms,
@@ -39,22 +40,25 @@ def point_track_events(
     duration_s: float = 0.03,
     points: int = 1500,
     calib: Calibration | None = None,
+    alpha: np.ndarray | None = None,
+    per_point: int = 10,
 ) -> EventArray:
-    """Events of random static world points seen by a camera turning at constant ``omega``.
+    """Events of random static world points seen by a camera turning at constant ``omega``
+    (rad/s), or at ``omega + alpha t`` (``alpha`` rad/s², t from 0).
 
     Independent of the code under test: the camera-to-world rotation is SciPy's
-    ``exp([ω]x t)`` (dR/dt = R [ω]x), a point's camera-frame ray is ``R(t)^T b_w``, and each
-    point fires at random times at the pixel its ray projects to (through ``calib``'s lens
-    distortion when given).
+    ``exp([ω]x t)`` (dR/dt = R [ω]x; with ``alpha``, integrated in 10 µs midpoint steps and
+    interpolated by SciPy's Slerp), a point's camera-frame ray is ``R(t)^T b_w``, and each
+    point fires ``per_point`` times at random at the pixel its ray projects to (through
+    ``calib``'s lens distortion when given).
     """
     rng = np.random.default_rng(seed)
     d = rng.normal(size=(points * 8, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     d = d[d[:, 2] > 0.6][:points]
-    per_point = 10
     t = rng.uniform(0.0, duration_s, (len(d), per_point)).ravel()
     b_world = np.repeat(d, per_point, axis=0)
-    b_cam = Rotation.from_rotvec(np.outer(t, omega)).inv().apply(b_world)
+    b_cam = camera_to_world(omega, alpha, t, duration_s).inv().apply(b_world)
     xn, yn = b_cam[:, 0] / b_cam[:, 2], b_cam[:, 1] / b_cam[:, 2]
     if calib is not None:
         xn, yn = calib.distort(xn, yn)
@@ -70,6 +74,22 @@ def point_track_events(
         WIDTH,
         HEIGHT,
     )
+
+
+def camera_to_world(
+    omega: np.ndarray, alpha: np.ndarray | None, t: np.ndarray, duration_s: float
+) -> Rotation:
+    """The camera's rotation R(t) at times ``t`` (s) turning at ``omega + alpha t`` (rad/s)."""
+    if alpha is None:
+        return Rotation.from_rotvec(np.outer(t, omega))
+    knots = np.linspace(0.0, duration_s, round(duration_s / 1e-5) + 1)
+    steps = Rotation.from_rotvec(np.outer(np.diff(knots), omega) + np.outer(
+        0.5 * (knots[1:] + knots[:-1]) * np.diff(knots), alpha
+    ))  # fmt: skip
+    poses = [Rotation.identity()]
+    for step in steps:
+        poses.append(poses[-1] * step)
+    return Slerp(knots, Rotation.concatenate(poses))(t)
 
 
 def with_extra_events(events: EventArray, x: np.ndarray, y: np.ndarray, seed: int) -> EventArray:
@@ -376,3 +396,65 @@ def test_old_import_paths_warn_and_forward(old, name, new):
     assert getattr(module, name) is getattr(importlib.import_module(new), name)
     with pytest.raises(AttributeError, match="no attribute"):
         module.not_there  # noqa: B018
+
+
+def test_accelerating_warp_with_zero_alpha_is_the_constant_warp() -> None:
+    rng = np.random.default_rng(1)
+    bx, by = rng.uniform(-0.5, 0.5, 300), rng.uniform(-0.4, 0.4, 300)
+    dt, omega = rng.uniform(-0.02, 0.03, 300), np.radians([200.0, -150.0, 300.0])
+    constant = cmax_iwe.warp(bx, by, dt, omega, INTRINSICS, 2.0, True)
+    bent = cmax_iwe.warp_accelerating(bx, by, dt, np.r_[omega, 0, 0, 0], INTRINSICS, 2.0, True)
+    for a, b in zip(constant, bent[:3], strict=False):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(bent[3][:, :3], constant[3], rtol=1e-12)
+    np.testing.assert_allclose(bent[4][:, :3], constant[4], rtol=1e-12)
+
+
+@pytest.mark.parametrize("scale", [1, 2])
+def test_accelerating_contrast_gradient_matches_finite_differences(scale: int) -> None:
+    events = point_track_events(np.radians([100.0, -60.0, 150.0]), seed=7, points=400)
+    problem = make_problem(
+        events, default_camera(WIDTH, HEIGHT), CMaxConfig(), np.random.default_rng(0),
+        t_ref_us=float(events.t[-1]),
+    )  # fmt: skip
+    params = np.r_[np.radians([90.0, -50.0, 140.0]), np.radians([400.0, -300.0, 600.0])]
+    _, grad = problem.contrast(params, scale, 1.5, gradient=True)
+    steps = np.r_[np.full(3, 1e-5), np.full(3, 1e-3)]
+    numeric = [
+        (
+            problem.contrast(params + h * e, scale, 1.5)[0]
+            - problem.contrast(params - h * e, scale, 1.5)[0]
+        )
+        / (2 * h)
+        for h, e in zip(steps, np.eye(6), strict=True)
+    ]
+    np.testing.assert_allclose(grad, numeric, rtol=2e-3, atol=1e-3 * np.abs(numeric).max())
+
+
+def test_recovers_omega_at_the_end_and_alpha_of_accelerating_point_tracks() -> None:
+    omega0, alpha = np.radians([40.0, -80.0, 60.0]), np.radians([1500.0, 1000.0, -2000.0])
+    events = point_track_events(omega0, seed=21, duration_s=0.04, alpha=alpha)
+    end = omega0 + alpha * 0.04  # the rate at the last event (within 0.1 ms)
+    config = CMaxConfig()
+    problem = make_problem(
+        events, default_camera(WIDTH, HEIGHT), config, np.random.default_rng(0),
+        t_ref_us=float(events.t[-1]),
+    )  # fmt: skip
+    mean = search(problem, config).omega  # the constant rotation: about the middle's rate
+    found = refine(problem, np.r_[mean, 0.0, 0.0, 0.0], 1, config).omega
+    assert np.linalg.norm(found[:3] - end) < 0.25 * np.linalg.norm(mean - end)
+    assert_close_omega(found[:3], end)
+    assert np.linalg.norm(found[3:] - alpha) < 0.2 * np.linalg.norm(alpha)
+
+
+def test_live_estimates_at_the_window_end_lag_less_under_acceleration() -> None:
+    omega0, alpha = np.radians([20.0, 40.0, 0.0]), np.radians([0.0, 0.0, 800.0])
+    events = point_track_events(omega0, 22, 0.3, 1500, alpha=alpha, per_point=60)
+    errors = {}
+    for accelerating in (False, True):
+        est = CMaxEstimator(default_camera(WIDTH, HEIGHT), CMaxConfig(accelerating=accelerating))
+        out = est.run(events)
+        late = out.t_us >= 100_000
+        truth = omega0 + np.outer(out.t_us[late] * 1e-6, alpha)
+        errors[accelerating] = np.linalg.norm(out.omega[late] - truth, axis=1).mean()
+    assert errors[True] < 0.5 * errors[False], np.degrees([errors[False], errors[True]])

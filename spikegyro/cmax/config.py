@@ -59,6 +59,17 @@ class CMaxConfig:
         gain_drop: when an estimate's contrast gain above 1 falls below this share of its
             recent best, or it is ill-posed, the next search comes after a fifth of
             ``search_every_s``; below half this share, at the next estimate.
+        accelerating: each estimate is then refined once more under a rotation whose rate
+            changes linearly (ω at the window's end and its rate of change α,
+            :func:`~spikegyro.cmax.iwe.contrast_accelerating`), warm-started from the window's
+            mean rate and the previous α, and reports ω at the window's end instead of the
+            window's mean rate.
+        bend_window: that fit uses the events of this many times the window's span (the bend
+            α puts into the warp grows with the square of the span).
+        bend_iterations: BFGS iterations of that fit.
+        bend_cost: how much an α that bends the warp costs, as a share of the contrast per
+            pixel² of displacement at the fit's far end, so that α stays near 0 where the
+            events do not determine it.
 
     One window (:func:`estimate_window`, :func:`search`):
         max_events: windows with more events are randomly subsampled to this many (speed).
@@ -94,6 +105,10 @@ class CMaxConfig:
     search_every_s: float = 1.0
     min_motion_px: float = 1.0
     gain_drop: float = 0.6
+    accelerating: bool = False
+    bend_window: float = 3.0
+    bend_iterations: int = 4
+    bend_cost: float = 0.0
     max_events: int = 30_000
     min_events: int = 100
     hot_pixel_factor: float = 5.0

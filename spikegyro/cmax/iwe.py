@@ -88,6 +88,52 @@ def _blur(image: np.ndarray, taps: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
+def _rotate_project(
+    px: float,
+    py: float,
+    pz: float,
+    x: float,
+    y: float,
+    intrinsics: np.ndarray,
+    inv: float,
+    with_gradient: bool,
+) -> tuple[float, float, bool, float, float, float, float, float, float]:
+    """Ray ``(x, y, 1)`` rotated by the rotation vector φ = (px, py, pz) and projected.
+
+    Returns ``(u, v, valid)`` and, with ``with_gradient``, ``-du/dφ`` and ``-dv/dφ`` (px per
+    rad, 3 values each; zeros without). Scalars only: no per-event arrays.
+    """
+    fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
+    theta2 = px * px + py * py + pz * pz
+    a, b, c = _rotation_coefficients(theta2)
+    # p x b and p x (p x b) for the ray b = (x, y, 1)
+    k0, k1, k2 = py - pz * y, pz * x - px, px * y - py * x
+    kk0, kk1, kk2 = py * k2 - pz * k1, pz * k0 - px * k2, px * k1 - py * k0
+    rx, ry, rz = x + a * k0 + b * kk0, y + a * k1 + b * kk1, 1.0 + a * k2 + b * kk2
+    iz = 1.0 / rz if rz > 0.1 else 1.0
+    u = ((fx * rx * iz + cx) + 0.5) * inv - 0.5
+    v = ((fy * ry * iz + cy) + 0.5) * inv - 0.5
+    if not with_gradient:
+        return u, v, rz > 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    # -du/dφ = J(φ)ᵀ (g x r) for g = du/dr, and Jᵀ h = h - b φ x h + c (φ (φ·h) - θ² h)
+    g0, g2 = fx * iz * inv, -fx * rx * iz * iz * inv  # du/dr (its y component is 0)
+    h0, h1, h2 = -g2 * ry, g2 * rx - g0 * rz, g0 * ry
+    ph = px * h0 + py * h1 + pz * h2
+    c0, c1, c2 = py * h2 - pz * h1, pz * h0 - px * h2, px * h1 - py * h0
+    u0 = h0 - b * c0 + c * (px * ph - theta2 * h0)
+    u1 = h1 - b * c1 + c * (py * ph - theta2 * h1)
+    u2 = h2 - b * c2 + c * (pz * ph - theta2 * h2)
+    g1, g2 = fy * iz * inv, -fy * ry * iz * iz * inv  # dv/dr (its x component is 0)
+    h0, h1, h2 = g1 * rz - g2 * ry, g2 * rx, -g1 * rx
+    ph = px * h0 + py * h1 + pz * h2
+    c0, c1, c2 = py * h2 - pz * h1, pz * h0 - px * h2, px * h1 - py * h0
+    v0 = h0 - b * c0 + c * (px * ph - theta2 * h0)
+    v1 = h1 - b * c1 + c * (py * ph - theta2 * h1)
+    v2 = h2 - b * c2 + c * (pz * ph - theta2 * h2)
+    return u, v, rz > 0.1, u0, u1, u2, v0, v1, v2
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def warp(
     bx: np.ndarray,
     by: np.ndarray,
@@ -108,7 +154,6 @@ def warp(
         (N,), and, with ``with_gradient``, d u/dω and d v/dω (N, 3) in px per rad/s.
     """
     n = bx.shape[0]
-    fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
     inv = 1.0 / scale
     u = np.empty(n)
     v = np.empty(n)
@@ -117,32 +162,54 @@ def warp(
     du = np.zeros((m, 3))
     dv = np.zeros((m, 3))
     for i in range(n):
-        px, py, pz = -omega[0] * dt[i], -omega[1] * dt[i], -omega[2] * dt[i]
-        a, b, c = _rotation_coefficients(px * px + py * py + pz * pz)
-        x, y = bx[i], by[i]
-        # p x b and p x (p x b) for the ray b = (x, y, 1)
-        k0, k1, k2 = py - pz * y, pz * x - px, px * y - py * x
-        kk0, kk1, kk2 = py * k2 - pz * k1, pz * k0 - px * k2, px * k1 - py * k0
-        rx, ry, rz = x + a * k0 + b * kk0, y + a * k1 + b * kk1, 1.0 + a * k2 + b * kk2
-        valid[i] = rz > 0.1
-        iz = 1.0 / rz if rz > 0.1 else 1.0
-        u[i] = ((fx * rx * iz + cx) + 0.5) * inv - 0.5
-        v[i] = ((fy * ry * iz + cy) + 0.5) * inv - 0.5
+        d = dt[i]
+        u[i], v[i], valid[i], u0, u1, u2, v0, v1, v2 = _rotate_project(
+            -omega[0] * d, -omega[1] * d, -omega[2] * d, bx[i], by[i], intrinsics, inv,
+            with_gradient,
+        )  # fmt: skip
+        if with_gradient:  # dφ/dω = -dt
+            du[i, 0], du[i, 1], du[i, 2] = d * u0, d * u1, d * u2
+            dv[i, 0], dv[i, 1], dv[i, 2] = d * v0, d * v1, d * v2
+    return u, v, valid, du, dv
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def warp_accelerating(
+    bx: np.ndarray,
+    by: np.ndarray,
+    dt: np.ndarray,
+    params: np.ndarray,
+    intrinsics: np.ndarray,
+    scale: float,
+    with_gradient: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Warp under a rotation whose rate changes linearly: ``ω(t) = ω_ref + α (t - t_ref)``.
+
+    ``params`` is ``(ω_ref (rad/s), α (rad/s²))``, 6 values. An event ``dt`` s before t_ref is
+    rotated by ``φ = -(ω_ref dt - α dt²/2)``, the integral of ω(t) over ``dt`` (exact when α is
+    parallel to ω, to second order in the angle otherwise). Returns as :func:`warp`, with the
+    gradients (N, 6) wrt ``params``: ``dφ/dω_ref = -dt``, ``dφ/dα = dt²/2``.
+    """
+    n = bx.shape[0]
+    inv = 1.0 / scale
+    u = np.empty(n)
+    v = np.empty(n)
+    valid = np.empty(n, dtype=np.bool_)
+    m = n if with_gradient else 0
+    du = np.zeros((m, 6))
+    dv = np.zeros((m, 6))
+    for i in range(n):
+        d = dt[i]
+        h = 0.5 * d * d
+        u[i], v[i], valid[i], u0, u1, u2, v0, v1, v2 = _rotate_project(
+            -params[0] * d + params[3] * h, -params[1] * d + params[4] * h,
+            -params[2] * d + params[5] * h, bx[i], by[i], intrinsics, inv, with_gradient,
+        )  # fmt: skip
         if with_gradient:
-            # du/dω = dt J(φ)ᵀ (g x r) for g = du/dr, and Jᵀ h = h - b φ x h + c (φ (φ·h) - θ² h)
-            theta2 = px * px + py * py + pz * pz
-            for row in range(2):
-                if row == 0:
-                    g0, g1, g2 = fx * iz * inv, 0.0, -fx * rx * iz * iz * inv
-                else:
-                    g0, g1, g2 = 0.0, fy * iz * inv, -fy * ry * iz * iz * inv
-                h0, h1, h2 = g1 * rz - g2 * ry, g2 * rx - g0 * rz, g0 * ry - g1 * rx
-                ph = px * h0 + py * h1 + pz * h2
-                c0, c1, c2 = py * h2 - pz * h1, pz * h0 - px * h2, px * h1 - py * h0
-                out = du if row == 0 else dv
-                out[i, 0] = dt[i] * (h0 - b * c0 + c * (px * ph - theta2 * h0))
-                out[i, 1] = dt[i] * (h1 - b * c1 + c * (py * ph - theta2 * h1))
-                out[i, 2] = dt[i] * (h2 - b * c2 + c * (pz * ph - theta2 * h2))
+            du[i, 0], du[i, 1], du[i, 2] = d * u0, d * u1, d * u2
+            dv[i, 0], dv[i, 1], dv[i, 2] = d * v0, d * v1, d * v2
+            du[i, 3], du[i, 4], du[i, 5] = -h * u0, -h * u1, -h * u2
+            dv[i, 3], dv[i, 4], dv[i, 5] = -h * v0, -h * v1, -h * v2
     return u, v, valid, du, dv
 
 
@@ -195,12 +262,51 @@ def contrast(
     ``width``, ``height`` are the IWE's size at that resolution; ``taps`` the Gaussian's.
     """
     u, v, valid, du, dv = warp(bx, by, dt, omega, intrinsics, scale, with_gradient)
+    return _variance(u, v, valid, du, dv, weights, width, height, taps, with_gradient)
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def contrast_accelerating(
+    bx: np.ndarray,
+    by: np.ndarray,
+    dt: np.ndarray,
+    weights: np.ndarray,
+    params: np.ndarray,
+    intrinsics: np.ndarray,
+    scale: float,
+    width: int,
+    height: int,
+    taps: np.ndarray,
+    with_gradient: bool,
+) -> tuple[float, np.ndarray]:
+    """:func:`contrast` under :func:`warp_accelerating`'s ``params`` (ω_ref rad/s, α rad/s²);
+    the gradient (6,) is wrt them."""
+    u, v, valid, du, dv = warp_accelerating(bx, by, dt, params, intrinsics, scale, with_gradient)
+    return _variance(u, v, valid, du, dv, weights, width, height, taps, with_gradient)
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _variance(
+    u: np.ndarray,
+    v: np.ndarray,
+    valid: np.ndarray,
+    du: np.ndarray,
+    dv: np.ndarray,
+    weights: np.ndarray,
+    width: int,
+    height: int,
+    taps: np.ndarray,
+    with_gradient: bool,
+) -> tuple[float, np.ndarray]:
+    """Variance of the blurred IWE of warped points (u, v) and its gradient wrt the warp's
+    parameters, from the points' derivatives ``du``, ``dv`` (N, K)."""
     blurred = _blur(accumulate(u, v, weights, valid, width, height), taps)
     pixels = width * height
     mean = blurred.sum() / pixels
     centred = blurred - mean
     variance = (centred * centred).sum() / pixels
-    gradient = np.zeros(3)
+    k = du.shape[1]
+    gradient = np.zeros(k)
     if not with_gradient:
         return variance, gradient
     q = _blur(centred, taps)
@@ -219,7 +325,7 @@ def contrast(
         gu = (1.0 - fv) * (q10 - q00) + fv * (q11 - q01)
         gv = (1.0 - fu) * (q01 - q00) + fu * (q11 - q10)
         w = weights[i]
-        for j in range(3):
+        for j in range(k):
             gradient[j] += w * (gu * du[i, j] + gv * dv[i, j])
     return variance, gradient * (2.0 / pixels)
 

@@ -75,6 +75,8 @@ class CMaxEstimator:
         self._omega: np.ndarray | None = None
         self._last_search_us: int | None = None
         self._hessian: np.ndarray | None = None
+        self._alpha = np.zeros(3)
+        self._bend_hessian: np.ndarray | None = None
         self._doubt = 1.0
         self._best_gain = 0.0
         self._last_t: int | None = None
@@ -238,16 +240,24 @@ class CMaxEstimator:
         if self._omega is not None:  # in the objective's (binned) pixels
             speed = self._speed(self._omega)
         i0 = config.window.start(t, i1, t_us, speed, searching)
-        index = np.arange(buf.start + i0, buf.start + i1)
-        index = index[~self._hot.hot[buf.pix[index]]]
-        count = len(index)
-        if count < max(config.min_events, 2):
+        index = self._kept(i0, i1)
+        if index is None:
             return None
-        if count > config.track_events:
-            # Evenly thinned: the same share of every part of the window, at no random cost.
-            index = index[np.linspace(0, len(index) - 1, config.track_events).astype(np.intp)]
         span = float(t_us - buf.t[index[0]])
         return index, span, i1 - i0
+
+    def _kept(self, i0: int, i1: int) -> np.ndarray | None:
+        """Buffer indices of the events ``i0:i1`` of the buffer's times, hot pixels left out,
+        evenly thinned to ``track_events``; None when fewer than ``min_events`` remain."""
+        buf, config = self._buffer, self.config
+        index = np.arange(buf.start + i0, buf.start + i1)
+        index = index[~self._hot.hot[buf.pix[index]]]
+        if len(index) < max(config.min_events, 2):
+            return None
+        if len(index) > config.track_events:
+            # Evenly thinned: the same share of every part of the window, at no random cost.
+            index = index[np.linspace(0, len(index) - 1, config.track_events).astype(np.intp)]
+        return index
 
     def _flags(
         self, problem: Problem, omega: np.ndarray, count: int, span_us: float, t_us: int
@@ -328,4 +338,38 @@ class CMaxEstimator:
         flags = self._flags(problem, omega, count, span, t_us)
         self._update_doubt(gain, flags)
         delay = float(dt.mean()) * 1e6
+        if config.accelerating:
+            omega = self._at_end(t_us, span, omega, delay * 1e-6)
         return t_us, omega, count, span, delay, gain, flags
+
+    def _at_end(self, t_us: int, span_us: float, omega: np.ndarray, age_s: float) -> np.ndarray:
+        """ω (rad/s) at ``t_us`` under a linearly changing rate, fitted to the events of
+        ``bend_window`` times the window's span ``span_us`` (the bend that α puts in the warp
+        grows with the square of the span: over one window sized for a few pixels of motion
+        it is a fraction of a pixel), from the window's mean rate ``omega`` (the rate at the
+        events' mean age ``age_s``, s) and the previous α."""
+        buf, config = self._buffer, self.config
+        t = buf.times()
+        i1 = int(np.searchsorted(t, t_us, side="right"))
+        i0 = int(np.searchsorted(t, t_us - config.bend_window * span_us, side="left"))
+        index = self._kept(i0, i1)
+        if index is None:
+            return omega
+        width, height = self._sensor
+        problem = Problem(
+            buf.bx[index], buf.by[index], (t_us - buf.t[index]) * 1e-6, np.ones(len(index)),
+            self._intrinsics, width, height, self._base,
+        )  # fmt: skip
+        start = np.r_[omega + self._alpha * age_s, self._alpha]
+        found = refine(
+            problem,
+            start,
+            1,
+            config,
+            config.bend_iterations,
+            self._bend_hessian,
+            config.track_xtol_px,
+            config.bend_cost,
+        )
+        self._alpha, self._bend_hessian = found.omega[3:], found.inv_hessian
+        return found.omega[:3]

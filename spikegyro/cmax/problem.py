@@ -88,9 +88,15 @@ class Problem:
     def contrast(
         self, omega: np.ndarray, scale: int, sigma: float, gradient: bool = False
     ) -> tuple[float, np.ndarray]:
-        """IWE variance at pyramid ``scale`` (and its gradient in 1/(rad/s))."""
+        """IWE variance at pyramid ``scale`` (and its gradient in 1/(rad/s)).
+
+        ``omega``: (3,) rad/s, a constant rotation; or (6,), ω at t_ref (rad/s) and its rate of
+        change α (rad/s²) (:func:`~spikegyro.cmax.iwe.contrast_accelerating`; the gradient is
+        then wrt both).
+        """
         level = self.level(scale)
-        return iwe.contrast(
+        function = iwe.contrast if len(omega) == 3 else iwe.contrast_accelerating
+        return function(
             self.bx,
             self.by,
             self.dt,

@@ -132,13 +132,23 @@ def maximize_bfgs(
 
 @dataclass(frozen=True)
 class Refined:
-    """ω (3,) rad/s from :func:`refine`, its contrast, and the curvature to warm-start with
-    (inverse Hessian in normalized units: pixels at the window's far end, contrast over the
-    starting contrast)."""
+    """ω (3,) rad/s (or ω and α (6,), see :func:`refine`) from :func:`refine`, its contrast,
+    and the curvature to warm-start with (inverse Hessian in normalized units: pixels at the
+    window's far end, contrast over the starting contrast)."""
 
     omega: np.ndarray
     contrast: float
     inv_hessian: np.ndarray | None
+
+
+def _units(problem: Problem, size: int, scale: int) -> np.ndarray:
+    """Pixels of displacement at the window's far end (this level's pixels, binning included)
+    per unit of each variable: ω (rad/s), then α (rad/s²) when ``size`` is 6."""
+    px = problem.px_per_rad_s / problem.level(scale)
+    if size == 3:
+        return np.full(3, px)
+    span = problem.px_per_rad_s / float(problem.intrinsics[0])  # s
+    return np.r_[np.full(3, px), np.full(3, 0.5 * span * px)]
 
 
 def refine(
@@ -149,6 +159,7 @@ def refine(
     iterations: int | None = None,
     inv_hessian: np.ndarray | None = None,
     xtol_px: float = 0.01,
+    bend_cost: float = 0.0,
 ) -> Refined:
     """Maximize the contrast at one pyramid level from ``omega`` (rad/s).
 
@@ -157,22 +168,29 @@ def refine(
     objective is normalized by its starting value, so steps, tolerances and curvature mean the
     same in any window: the first step is half a pixel (without ``inv_hessian``), and a step
     under ``xtol_px`` ends the search.
+
+    ``omega`` of 6 values is ω at t_ref and its rate of change α (rad/s²) (see
+    :meth:`Problem.contrast`); α counts in the pixels its bend moves the window's far end, and
+    ``bend_cost`` times their square is taken off the normalized contrast, so that α stays near
+    0 where the events do not determine it.
     """
-    px = problem.px_per_rad_s / problem.level(scale)
     omega = np.asarray(omega, dtype=np.float64)
+    units = _units(problem, len(omega), scale)
     norm, grad = problem.contrast(omega, scale, config.sigma_px, gradient=True)
     if not norm > 0:
         return Refined(omega, norm, None)
+    bend = np.r_[np.zeros(3), np.ones(len(omega) - 3)] * bend_cost
 
     def objective(phi: np.ndarray) -> tuple[float, np.ndarray]:
-        value, grad = problem.contrast(phi / px, scale, config.sigma_px, gradient=True)
-        return value / norm, grad / (norm * px)
+        value, grad = problem.contrast(phi / units, scale, config.sigma_px, gradient=True)
+        return value / norm - bend @ phi**2, grad / (norm * units) - 2.0 * bend * phi
 
     steps = config.iterations if iterations is None else iterations
-    found = maximize_bfgs(
-        objective, omega * px, steps, 0.5, xtol_px, inv_hessian, (1.0, grad / (norm * px))
-    )
-    return Refined(found.x / px, found.value * norm, found.inv_hessian)
+    x0 = omega * units
+    start = (1.0 - bend @ x0**2, grad / (norm * units) - 2.0 * bend * x0)
+    found = maximize_bfgs(objective, x0, steps, 0.5, xtol_px, inv_hessian, start)
+    value = found.value + bend @ found.x**2
+    return Refined(found.x / units, value * norm, found.inv_hessian)
 
 
 def search(

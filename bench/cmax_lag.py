@@ -1,0 +1,111 @@
+"""Lag of the live CMax estimate: a window's mean rate against ω at the window's end.
+
+    .venv/bin/python bench/cmax_lag.py --translboxes ../shared/real/rueckauer2016_translBoxes \
+        --sim-dir /tmp/cmax-lag [--seconds 0.6]
+
+Streams each recording through :class:`~spikegyro.cmax.live.CMaxEstimator` at its defaults
+(100 Hz) twice in the same run: with ``accelerating=False`` (each estimate is the mean rate over
+its window) and ``accelerating=True`` (a rate changing linearly over the window, ω reported at
+the window's end). Every estimate is scored against the gyro interpolated at its own timestamp
+(from 50 ms on): per-axis mean absolute error and mean Euclidean error, deg/s, and CPU-seconds
+per second of events.
+
+Recordings: translBoxes (real DAVIS240C, its own gyro in the camera frame, whose +3.5 deg/s
+tilt and -1 deg/s pan bias from its README are subtracted), and two simulated DAVIS240C-like
+recordings with changing rotation, written once to ``--sim-dir`` and reused: ``slow`` (2 s, a
+hand-held-like rotation, ``spikegyro simulate --slow-share 1 --duration-ms 2000``'s
+trajectory) and ``demo`` (4 s, the trajectory the demo streams: ``accel_std_deg=300``).
+``--seconds`` scores only the first that many seconds of each (speed on a loaded machine).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from spikegyro.cmax.config import CMaxConfig
+from spikegyro.cmax.live import CMaxEstimator
+from spikegyro.cmax.problem import camera_from_attrs
+from spikegyro.events.calib import Calibration
+from spikegyro.events.io import read_recording, write_recording
+from spikegyro.sim.dataset import SimConfig, simulate_sequence
+from spikegyro.sim.trajectory import TrajectoryConfig
+
+SIMULATED = {
+    "slow": (SimConfig(duration_ms=2000, trajectory=TrajectoryConfig(slow_share=1.0)), 11),
+    "demo": (SimConfig(duration_ms=4000, trajectory=TrajectoryConfig(accel_std_deg=300.0)), 2027),
+}
+
+
+def simulated(folder: Path, name: str):
+    """The simulated recording ``name`` (written to ``folder`` the first time)."""
+    path = folder / f"{name}.h5"
+    if not path.exists():
+        sim, seed = SIMULATED[name]
+        folder.mkdir(parents=True, exist_ok=True)
+        write_recording(path, simulate_sequence(sim, 0, seed, split="test"))
+    return read_recording(path)
+
+
+def score(events, camera, t_gyro, w_gyro, accelerating: bool) -> dict:
+    """One streaming run scored at each estimate's own timestamp (deg/s)."""
+    est = CMaxEstimator(camera, CMaxConfig(accelerating=accelerating))
+    c0 = time.process_time()
+    out = est.run(events)
+    cpu = time.process_time() - c0
+    seconds = (int(events.t[-1]) - int(events.t[0])) / 1e6
+    ok = (out.t_us > est.t0_us + 50_000) & (out.t_us >= t_gyro[0]) & (out.t_us <= t_gyro[-1])
+    ref = np.column_stack([np.interp(out.t_us[ok], t_gyro, w_gyro[:, i]) for i in range(3)])
+    err = np.degrees(out.omega[ok] - ref)
+    return {
+        "mae": np.abs(err).mean(axis=0),
+        "euclid": float(np.linalg.norm(err, axis=1).mean()),
+        "speed": float(np.degrees(np.linalg.norm(ref, axis=1)).mean()),
+        "n": int(ok.sum()),
+        "cpu": cpu / seconds,
+    }
+
+
+def recordings(args: argparse.Namespace):
+    """(name, events, camera, gyro times µs, gyro ω rad/s) of each recording benchmarked."""
+    if args.translboxes is not None:
+        rec = read_recording(args.translboxes / "events.txt")
+        gyro = np.loadtxt(args.translboxes / "gyro.txt")
+        bias = np.radians([3.5, -1.0, 0.0])
+        camera = Calibration(245.0, 245.0, 120.0, 90.0)
+        yield "translBoxes", rec.events, camera, gyro[:, 0] * 1e6, gyro[:, 1:4] - bias
+    for name in SIMULATED if args.sim_dir is not None else ():
+        rec = simulated(args.sim_dir, name)
+        camera = camera_from_attrs(rec.attrs, rec.events.width, rec.events.height)
+        yield f"sim {name}", rec.events, camera, rec.gyro.t.astype(np.float64), rec.gyro.omega
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--translboxes", type=Path, help="The translBoxes folder (gyro.txt).")
+    parser.add_argument("--sim-dir", type=Path, help="Folder for the simulated recordings.")
+    parser.add_argument("--seconds", type=float, default=0.0, help="Score only this long (s).")
+    args = parser.parse_args()
+    print("recording     |gyro|  model         n   tilt   pan  roll  (MAE)  Euclid  CPU-s/s")
+    for name, events, camera, t_gyro, w_gyro in recordings(args):
+        if args.seconds > 0:
+            events = events.slice_time(int(events.t[0]), int(events.t[0] + args.seconds * 1e6))
+        rows = {a: score(events, camera, t_gyro, w_gyro, a) for a in (False, True)}
+        for accelerating, r in rows.items():
+            model = "end of window" if accelerating else "mean rate"
+            tilt, pan, roll = r["mae"]
+            print(f"{name:13s} {r['speed']:5.1f}  {model:13s} {r['n']:4d} {tilt:5.2f} {pan:5.2f} "
+                  f"{roll:5.2f}        {r['euclid']:6.2f}  {r['cpu']:6.2f}")  # fmt: skip
+        print(f"{name:13s} Euclidean error ratio (end / mean): "
+              f"{rows[True]['euclid'] / rows[False]['euclid']:.3f}")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
