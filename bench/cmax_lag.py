@@ -1,7 +1,7 @@
 """Lag of the live CMax estimate: a window's mean rate against ω at the window's end.
 
     .venv/bin/python bench/cmax_lag.py --translboxes ../shared/real/rueckauer2016_translBoxes \
-        --sim-dir /tmp/cmax-lag [--seconds 0.6]
+        --sim-dir /tmp/cmax-lag [--sims slow demo] [--seconds 0.6]
 
 Streams each recording through :class:`~spikegyro.cmax.live.CMaxEstimator` at its defaults
 (100 Hz) twice in the same run: with ``accelerating=False`` (each estimate is the mean rate over
@@ -81,7 +81,7 @@ def recordings(args: argparse.Namespace):
         bias = np.radians([3.5, -1.0, 0.0])
         camera = Calibration(245.0, 245.0, 120.0, 90.0)
         yield "translBoxes", rec.events, camera, gyro[:, 0] * 1e6, gyro[:, 1:4] - bias
-    for name in SIMULATED if args.sim_dir is not None else ():
+    for name in args.sims if args.sim_dir is not None else ():
         rec = simulated(args.sim_dir, name)
         camera = camera_from_attrs(rec.attrs, rec.events.width, rec.events.height)
         yield f"sim {name}", rec.events, camera, rec.gyro.t.astype(np.float64), rec.gyro.omega
@@ -91,6 +91,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--translboxes", type=Path, help="The translBoxes folder (gyro.txt).")
     parser.add_argument("--sim-dir", type=Path, help="Folder for the simulated recordings.")
+    parser.add_argument("--sims", nargs="+", default=list(SIMULATED), choices=list(SIMULATED))
     parser.add_argument("--seconds", type=float, default=0.0, help="Score only this long (s).")
     args = parser.parse_args()
     print("recording     |gyro|  model         n   tilt   pan  roll  (MAE)  Euclid  CPU-s/s")

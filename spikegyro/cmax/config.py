@@ -106,7 +106,7 @@ class CMaxConfig:
     min_motion_px: float = 1.0
     gain_drop: float = 0.6
     accelerating: bool = False
-    bend_window: float = 3.0
+    bend_window: float = 2.0
     bend_iterations: int = 4
     bend_cost: float = 0.0
     max_events: int = 30_000
