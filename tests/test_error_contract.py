@@ -145,7 +145,8 @@ CASES: dict[str, str] = {
     "--intrinsics 200 200 120 90",
     "adapt-ann-checkpoint": "adapt {events.txt} --out {out}/a.pt --intrinsics 200 200 120 90 "
     "--checkpoint ann6",
-    "adapt-out-missing-folder": "adapt {events.txt} --out {out}/no/a.pt --intrinsics 200 200 120 90",
+    "adapt-out-missing-folder": "adapt {events.txt} --out {out}/no/a.pt "
+    "--intrinsics 200 200 120 90",
     "adapt-too-short": "adapt {events.txt} --out {out}/a.pt --intrinsics 200 200 120 90 --end 0.05",
     "adapt-zero-budget": "adapt {events.txt} --out {out}/a.pt --intrinsics 200 200 120 90 "
     "--max-minutes 0",
