@@ -26,7 +26,13 @@ import numpy as np
 
 from spikegyro.cmax.confidence import not_one_rotation
 from spikegyro.cmax.config import CMaxConfig, Progress
-from spikegyro.cmax.problem import Intrinsics, Problem, base_scale, default_camera, ray_table
+from spikegyro.cmax.problem import (
+    Intrinsics,
+    Problem,
+    base_scale,
+    camera_rays,
+    default_camera,
+)
 from spikegyro.cmax.search import refine, search
 from spikegyro.cmax.windows import EventBuffer, HotPixels, Thinning, pixel_speed, rms_radius
 from spikegyro.events.core import EventArray
@@ -189,8 +195,7 @@ class CMaxEstimator:
         if self.camera is None:
             self.camera = default_camera(width, height)
         cam = self.camera
-        key = cam if hasattr(cam, "pixel_rays") else (cam.fx, cam.fy, cam.cx, cam.cy)
-        self._rays = ray_table(key, width, height)
+        self._rays = camera_rays(cam, width, height)
         self._intrinsics = np.array([cam.fx, cam.fy, cam.cx, cam.cy], dtype=np.float64)
         self._radius = rms_radius(width, height, cam.cx, cam.cy)
         self._base = base_scale(width, height, self.config.max_pixels)

@@ -33,10 +33,16 @@ import numpy as np
 from spikegyro.cmax.confidence import not_one_rotation
 from spikegyro.cmax.config import CMaxConfig, Progress
 from spikegyro.cmax.files import camera_for_file
-from spikegyro.cmax.problem import Intrinsics, Problem, base_scale, default_camera, ray_table
+from spikegyro.cmax.problem import (
+    Intrinsics,
+    Problem,
+    base_scale,
+    default_camera,
+    event_rays,
+)
 from spikegyro.cmax.search import Refined, search
 from spikegyro.cmax.series import per_ms
-from spikegyro.cmax.windows import hot_pixel_mask, pixel_speed, rms_radius
+from spikegyro.cmax.windows import pixel_speed, rms_radius
 from spikegyro.events.calib import Calibration
 from spikegyro.events.core import EventArray
 from spikegyro.events.windows import BIN_US, series_per_window
@@ -94,12 +100,7 @@ class _Rays:
 def _rays(events: EventArray, camera: Intrinsics, config: CMaxConfig) -> _Rays:
     """Rays of ``events``, hot pixels (over the whole recording) and undefined rays dropped;
     dithered as in the live engine, so that ω = 0 gets no spurious peak."""
-    keep = hot_pixel_mask(events.x, events.y, events.width, events.height, config.hot_pixel_factor)
-    key = camera if hasattr(camera, "pixel_rays") else (camera.fx, camera.fy, camera.cx, camera.cy)
-    xs, ys = ray_table(key, events.width, events.height)
-    ix, iy = events.x.astype(np.intp), events.y.astype(np.intp)
-    bx, by = xs[iy, ix], ys[iy, ix]
-    keep &= np.isfinite(bx) & np.isfinite(by)
+    keep, bx, by = event_rays(events, camera, config.hot_pixel_factor)
     jitter = np.random.default_rng(config.seed + 1).random((int(keep.sum()), 2)) - 0.5
     return _Rays(
         events.t[keep].astype(np.int64),

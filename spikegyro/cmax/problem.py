@@ -145,6 +145,25 @@ def ray_table(camera: Any, width: int, height: int) -> tuple[np.ndarray, np.ndar
     return np.asarray(xn), np.asarray(yn)
 
 
+def camera_rays(camera: Intrinsics, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`ray_table` of ``camera``, cached by value: a calibration undistorts, any other
+    intrinsics are a plain pinhole."""
+    key = camera if hasattr(camera, "pixel_rays") else (camera.fx, camera.fy, camera.cx, camera.cy)
+    return ray_table(key, width, height)
+
+
+def event_rays(
+    events: EventArray, camera: Intrinsics, hot_pixel_factor: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(keep, bx, by)``: which events are usable (not on a hot pixel, with a defined ray) and
+    every event's ray x/z and y/z."""
+    keep = hot_pixel_mask(events.x, events.y, events.width, events.height, hot_pixel_factor)
+    xs, ys = camera_rays(camera, events.width, events.height)
+    ix, iy = events.x.astype(np.intp), events.y.astype(np.intp)
+    bx, by = xs[iy, ix], ys[iy, ix]
+    return keep & np.isfinite(bx) & np.isfinite(by), bx, by
+
+
 def make_problem(
     events: EventArray,
     camera: Intrinsics,
@@ -156,13 +175,7 @@ def make_problem(
 
     ``t_ref_us`` defaults to the middle of the events' span.
     """
-    keep = hot_pixel_mask(events.x, events.y, events.width, events.height, config.hot_pixel_factor)
-    # Keyed by value: a calibration undistorts, any other intrinsics are a plain pinhole.
-    key = camera if hasattr(camera, "pixel_rays") else (camera.fx, camera.fy, camera.cx, camera.cy)
-    xs, ys = ray_table(key, events.width, events.height)
-    ix, iy = events.x.astype(np.intp), events.y.astype(np.intp)
-    bx, by = xs[iy, ix], ys[iy, ix]
-    keep &= np.isfinite(bx) & np.isfinite(by)
+    keep, bx, by = event_rays(events, camera, config.hot_pixel_factor)
     index = np.flatnonzero(keep)
     if len(index) > config.max_events:
         index = np.sort(rng.choice(index, config.max_events, replace=False))
