@@ -52,7 +52,7 @@ from spikegyro.train.interrupt import GracefulStop, ignore_interrupts
 from spikegyro.train.loss import validation_metrics
 from spikegyro.train.memory import keep_freed_memory
 from spikegyro.train.presets import TrainConfig, load_config
-from spikegyro.train.real import RealWindows, load_recordings, model_inputs, real_validation
+from spikegyro.train.real import RealValidation, RealWindows, load_recordings, model_inputs
 from spikegyro.train.runfiles import (
     ProgressBar,
     RunFiles,
@@ -325,7 +325,7 @@ class _Run:
     best_on: str = ""  # windows_fingerprint of the validation windows ``best`` was measured on
     val_windows: list[Window] = field(default_factory=list)
     real: RealWindows | None = None  # unlabeled real windows (``config.real``)
-    real_val: list[Any] = field(default_factory=list)  # held-out real windows, scored
+    real_val: RealValidation | None = None  # the held-out real windows, scored
 
 
 @dataclass
@@ -436,10 +436,9 @@ def real_windows(config: TrainConfig, spec: InputSpec) -> RealWindows | None:
 def _validate_start(run: _Run, writer: Any) -> dict[str, float]:
     """Score the starting weights on the held-out real windows (a log row at step 0), so that
     what the run gains on real data is measured; {} without real recordings or on resume."""
-    if run.real is None or run.start_step or not run.ctx.is_main:
+    if run.real_val is None or run.start_step or not run.ctx.is_main:
         return {}
-    val = real_validation(run.model, run.real, run.real_val)
-    run.model.train()
+    val = run.real_val.score(run.model)
     _write_row(run.files, writer, {"step": 0, **{k: f"{v:.6g}" for k, v in val.items()}})
     return val
 
@@ -462,9 +461,10 @@ def _prepare_validation(run: _Run) -> None:
     if run.real is not None:
         loss = replace(run.real.loss, from_step=run.config.loss_start_step)
         spec = replace(run.real.spec, window_ms=run.config.window_ms)
-        run.real_val = RealWindows(run.real.recordings, spec, loss, run.config.seed).validation()
+        run.real_val = RealValidation(RealWindows(run.real.recordings, spec, loss, run.config.seed))
     run.val_windows = [] if run.config.real_only else validation_windows(run.config)
-    val_id = windows_fingerprint(run.val_windows + [w for w, _ in run.real_val])
+    real_windows = run.real_val.windows if run.real_val is not None else []
+    val_id = windows_fingerprint(run.val_windows + real_windows)
     if run.best_on != val_id and math.isfinite(run.best):
         # A best score on other validation data must not block the new data's best.pt.
         print(
@@ -595,9 +595,8 @@ def _validate_and_checkpoint(run: _Run, state: _Progress) -> dict[str, str]:
         state.val = {}
         if run.val_windows:
             state.val = validate(run.model, run.spec, run.val_windows, run.config, run.ctx.device)
-        if run.real is not None:
-            state.val.update(real_validation(run.model, run.real, run.real_val))
-            run.model.train()
+        if run.real_val is not None:
+            state.val.update(run.real_val.score(run.model))
         columns = {k: f"{v:.6g}" for k, v in state.val.items()}
         score = selection_score(state.val)
         better = score < run.best

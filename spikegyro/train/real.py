@@ -230,19 +230,32 @@ def model_inputs(windows: list[Window], spec: InputSpec, events: bool) -> Any:
     return torch.stack([encode_window(w, spec) for w in windows])
 
 
-def real_validation(
-    model: torch.nn.Module, real: RealWindows, scored: list[tuple[Window, list[SubWindow]]]
-) -> dict[str, float]:
-    """The held-out real windows' scores: the mean contrast gain of the model's estimates, and
-    of contrast maximization's (the ceiling one rotation per sub-window reaches)."""
-    windows = [w for w, _ in scored]
-    prediction = predict_windows(model, real.spec, windows, batch_size=8)
-    sigma = real.loss.sigma_px
-    gains = [
-        gain_of_prediction(p, subs, sigma) for p, (_, subs) in zip(prediction, scored, strict=True)
-    ]
-    ceiling = [s.teacher_gain for _, subs in scored for s in subs]
-    return {
-        "val_real_gain": float(np.nanmean(gains)) if gains else math.nan,
-        "val_real_gain_cmax": float(np.mean(ceiling)) if ceiling else math.nan,
-    }
+class RealValidation:
+    """The held-out real windows of a run, scored once, and how the model does on them."""
+
+    def __init__(self, source: RealWindows) -> None:
+        self.source = source
+        self.scored = source.validation()
+
+    @property
+    def windows(self) -> list[Window]:
+        """The held-out windows."""
+        return [w for w, _ in self.scored]
+
+    def score(self, model: torch.nn.Module) -> dict[str, float]:
+        """The mean contrast gain of the model's estimates on the windows, and of contrast
+        maximization's (the ceiling one rotation per sub-window reaches); the model's training
+        mode is kept."""
+        was_training = model.training
+        prediction = predict_windows(model, self.source.spec, self.windows, batch_size=8)
+        model.train(was_training)
+        sigma = self.source.loss.sigma_px
+        gains = [
+            gain_of_prediction(p, subs, sigma)
+            for p, (_, subs) in zip(prediction, self.scored, strict=True)
+        ]
+        ceiling = [s.teacher_gain for _, subs in self.scored for s in subs]
+        return {
+            "val_real_gain": float(np.nanmean(gains)) if gains else math.nan,
+            "val_real_gain_cmax": float(np.mean(ceiling)) if ceiling else math.nan,
+        }
