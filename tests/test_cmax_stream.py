@@ -5,6 +5,7 @@ clock offset, and `predict --method cmax` end to end on a simulated roll with it
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -137,6 +138,33 @@ def test_estimator_is_causal_and_batch_invariant() -> None:
     assert_close_omega(at[90_000], first)
     assert_close_omega(at[190_000], second)
     assert (ref.delay_us > 0).all() and (ref.delay_us < ref.window_us).all()
+
+
+def test_background_searches_and_tests_do_not_depend_on_their_timing(monkeypatch) -> None:
+    events, _, second = _two_rotations()
+    config = CMaxConfig(search_every_s=0.04, search_lag_ms=30.0)
+    ref = CMaxEstimator(CAMERA, config, t0_us=0)
+    expected = ref.run(events, batch_us=5000)
+    assert ref.searches >= 3  # the first one and at least two on the worker
+    # The worker made slow: the engine waits for each job where its result is due, so every
+    # estimate and flag stays the same.
+    import spikegyro.cmax.live as live
+
+    def slowly(function):
+        def slow(*args, **kwargs):
+            time.sleep(0.02)
+            return function(*args, **kwargs)
+
+        return slow
+
+    monkeypatch.setattr(live, "search", slowly(live.search))
+    monkeypatch.setattr(live, "not_one_rotation", slowly(live.not_one_rotation))
+    got = CMaxEstimator(CAMERA, config, t0_us=0).run(events, batch_us=5000)
+    np.testing.assert_array_equal(got.t_us, expected.t_us)
+    np.testing.assert_array_equal(got.omega, expected.omega)
+    np.testing.assert_array_equal(got.ill_posed, expected.ill_posed)
+    at = {int(t): w for t, w in zip(got.t_us, got.omega, strict=True)}
+    assert_close_omega(at[190_000], second)
 
 
 def test_too_few_events_are_flagged_and_the_first_estimate_waits() -> None:

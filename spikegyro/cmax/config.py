@@ -27,8 +27,9 @@ class OneRotationTest:
         iterations: BFGS iterations refining each half's ω from the window's.
         max_events: events (random subsample) each half keeps at most (speed).
         scale: image downscale factor the halves are compared at (speed).
-        every_ms: the live engine runs the test at most this often (ms of event time) and
-            carries its verdict to the estimates between (speed).
+        every_ms: the live engine runs the test at most this often (ms of event time), on a
+            second thread, its verdict applies from the next estimate until the next test's
+            (the stream's first at once) (speed).
     """
 
     min_agreement: float = 0.9
@@ -54,6 +55,9 @@ class CMaxConfig:
         track_xtol_px: a tracking estimate stops once a step moves edges less than this, px.
         search_every_s: the global search runs at the first estimate and then every this many
             seconds of event time (0: only at the first), the tracked estimate competing.
+        search_lag_ms: a search after the first runs on a second thread, and its ω is refined
+            on, and competes at, the first estimate this many ms of event time after the
+            search's own (the engine waits for it there).
         min_motion_px: estimates moving edges by less than this over their window are flagged
             ill-posed (too little motion to tell from none).
         gain_drop: when an estimate's contrast gain above 1 falls below this share of its
@@ -103,6 +107,7 @@ class CMaxConfig:
     track_iterations: int = 2
     track_xtol_px: float = 0.05
     search_every_s: float = 1.0
+    search_lag_ms: float = 200.0
     min_motion_px: float = 1.0
     gain_drop: float = 0.6
     accelerating: bool = False

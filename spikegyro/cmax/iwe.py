@@ -54,36 +54,32 @@ def _rotation_coefficients(theta2: float) -> tuple[float, float, float]:
 def _blur(image: np.ndarray, taps: np.ndarray) -> np.ndarray:
     """Separable blur with zero padding of a (H, W) image.
 
-    Along x each output pixel sums its taps from a zero-padded copy of its row (a register
-    accumulator, no bounds in the loop); along y each tap adds a whole blurred row to the
-    output row (innermost loop along x, contiguous). Both vectorize: the blur is most of the
-    objective's cost on a 240x180 image, and this form takes about 0.6 of the time of adding
-    each tap to whole rows in both passes.
+    The y pass runs first, each tap adding a whole source row into a row padded by the
+    radius on both sides; the x pass then adds each tap's shifted padded row to the output
+    row. Every innermost loop runs along x over contiguous memory with no bounds test, so
+    both vectorize: this takes about half the time of an x pass that sums the taps per pixel
+    in a register, on a 240x180 image where the blur is most of the objective's cost.
     """
     height, width = image.shape
     radius = (taps.shape[0] - 1) // 2
     if radius == 0:
         return image * taps[0]
-    count = 2 * radius + 1
-    padded = np.zeros(width + 2 * radius)
-    rows = np.empty((height, width))
+    padded = np.zeros((height, width + 2 * radius))
     for y in range(height):
-        padded[radius : radius + width] = image[y]
-        row = rows[y]
-        for x in range(width):
-            acc = 0.0
-            for k in range(count):
-                acc += taps[k] * padded[x + k]
-            row[x] = acc
+        target = padded[y, radius : radius + width]
+        for k in range(max(-radius, -y), min(radius, height - 1 - y) + 1):
+            w = taps[k + radius]
+            source = image[y + k]
+            for x in range(width):
+                target[x] += w * source[x]
     out = np.zeros((height, width))
     for y in range(height):
+        row = padded[y]
         target = out[y]
-        for k in range(-radius, radius + 1):
-            if 0 <= y + k < height:
-                w = taps[k + radius]
-                source = rows[y + k]
-                for x in range(width):
-                    target[x] += w * source[x]
+        for k in range(2 * radius + 1):
+            w = taps[k]
+            for x in range(width):
+                target[x] += w * row[x + k]
     return out
 
 

@@ -9,10 +9,20 @@ from the events in ``(t - W, t]`` only. Per estimate:
 2. its events (hot pixels dropped, evenly thinned to ``track_events``) as rays, warped to ``t``;
 3. a few BFGS steps at full resolution from the previous estimate with the exact-gradient
    Numba objective (:mod:`spikegyro.cmax.iwe`); the global search
-   (:func:`spikegyro.cmax.search.search`) instead at the first estimate and every
-   ``search_every_s``, the tracked estimate competing;
+   (:func:`spikegyro.cmax.search.search`) instead at the first estimate and when the
+   contrast gain collapses (the motion changed abruptly);
 4. its confidence: events used, window, the contrast over that of ω = 0, and flags when
-   ill-posed (too few events, too little motion).
+   ill-posed (too few events, too little motion, not one rotation).
+
+The other global searches (every ``search_every_s``, sooner when tracking is in doubt) and the
+one-rotation test cost tens of estimates' work each. Run in line they would hold up the
+estimates behind them by hundreds of milliseconds, so they run on a second thread (the Numba
+code releases the GIL) on a copy of their window, and their results are taken up at a fixed
+later point of event time: a search's at the first estimate ``search_lag_ms`` after it
+started (its ω refined on that estimate's window, competing with the tracked one), a test's
+verdict at the next estimate (the stream's first verdict at once). The main thread waits
+there if the job is not done, so the estimates do not depend on threads, timing or batching,
+and a file gives the same estimates as a live stream of it.
 
 Memory is bounded: only the events of the longest window are kept, as rays, in a buffer that
 grows to the largest window seen and is reused.
@@ -21,6 +31,9 @@ grows to the largest window seen and is reused.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +46,7 @@ from spikegyro.cmax.problem import (
     camera_rays,
     default_camera,
 )
-from spikegyro.cmax.search import refine, search
+from spikegyro.cmax.search import Refined, refine, search
 from spikegyro.cmax.windows import EventBuffer, HotPixels, Thinning, pixel_speed, rms_radius
 from spikegyro.events.core import EventArray
 from spikegyro.events.windows import BIN_US
@@ -44,6 +57,8 @@ from spikegyro.stream.estimator import (
     Estimates,
     output_times,
 )
+
+_NEVER = -(1 << 62)
 
 
 class CMaxEstimator:
@@ -66,8 +81,11 @@ class CMaxEstimator:
         self.camera = camera
         self.config = config or CMaxConfig()
         rate = f"{self.config.rate_hz:g} Hz" if self.config.rate_hz > 0 else "one per batch"
-        self.label = f"contrast maximization, causal windows, {rate} (CPU, 1 thread)"
+        self.label = (
+            f"contrast maximization, causal windows, {rate} (CPU, 1 thread + 1 for searches)"
+        )
         self.confidence = True
+        self._worker: ThreadPoolExecutor | None = None
         self.reset(t0_us)
 
     def reset(self, t0_us: int | None = None) -> None:
@@ -76,8 +94,10 @@ class CMaxEstimator:
         self.emitted = 0
         self.produced = 0
         self._seen = self._in_view = 0
-        self._not_one, self._tested_us = False, -(1 << 62)
+        self._not_one, self._tested_us = False, _NEVER
         self.searches = 0
+        self._search_job: tuple[Future, int] | None = None
+        self._test_job: Future | None = None
         self._omega: np.ndarray | None = None
         self._last_search_us: int | None = None
         self._hessian: np.ndarray | None = None
@@ -231,7 +251,9 @@ class CMaxEstimator:
         ``search_every_s``, sooner while tracking is in doubt."""
         every = self.config.search_every_s * 1e6
         since = math.inf if self._last_search_us is None else t_us - self._last_search_us
-        return self._omega is None or (every > 0 and since >= every * self._doubt)
+        if self._omega is None or self._doubt == 0.0:
+            return True
+        return self._search_job is None and every > 0 and since >= every * self._doubt
 
     def _window(self, t_us: int, searching: bool) -> tuple[np.ndarray, float, int] | None:
         """Buffer indices of the (thinned) events of the window ending at ``t_us``, its span
@@ -275,9 +297,16 @@ class CMaxEstimator:
         moved = self._speed(omega) * span_us * 1e-6
         if moved < config.min_motion_px:
             flags |= ILL_LITTLE_MOTION
+        if self._test_job is not None:
+            self._not_one, self._test_job = self._test_job.result(), None
         test = config.one_rotation
         if test is not None and t_us - self._tested_us >= 1000 * test.every_ms:
-            self._not_one = not_one_rotation(problem, omega, moved, config, self._rng)
+            rng = self._job_rng(1, t_us)
+            job = self._submit(not_one_rotation, problem, omega, moved, config, rng)
+            if self._tested_us == _NEVER:  # no verdict would cover the stream's start: wait
+                self._not_one = job.result()
+            else:
+                self._test_job = job
             self._tested_us = t_us
         if self._not_one and moved >= config.min_motion_px:
             flags |= ILL_NOT_ONE_ROTATION
@@ -322,20 +351,21 @@ class CMaxEstimator:
             buf.bx[index], buf.by[index], dt, np.ones(len(index)), self._intrinsics, width, height,
             self._base,
         )  # fmt: skip
-        if searching:
+        if self._omega is None or (searching and self._doubt == 0.0):
+            # Nothing to track from, or tracking lost: this search is waited for.
             found = search(problem, config, self._omega, grid=True, rng=self._rng)
             self._last_search_us = t_us
             self.searches += 1
+            self._search_job = None
         else:
-            found = refine(
-                problem,
-                self._omega,
-                1,
-                config,
-                config.track_iterations,
-                self._hessian,
-                config.track_xtol_px,
-            )
+            if searching:
+                rng = self._job_rng(0, t_us)
+                job = self._submit(search, problem, config, self._omega, True, rng)
+                self._search_job = (job, t_us + round(1000 * config.search_lag_ms))
+                self._last_search_us = t_us
+                self.searches += 1
+            found = self._track(problem, self._omega, self._hessian)
+            found = self._take_search(problem, found, t_us)
         omega = self._omega = found.omega
         self._hessian = found.inv_hessian
         flat = problem.contrast(np.zeros(3), 1, config.sigma_px)[0]
@@ -346,6 +376,36 @@ class CMaxEstimator:
         if config.accelerating:
             omega = self._at_end(t_us, span, omega, delay * 1e-6)
         return t_us, omega, count, span, delay, gain, flags
+
+    def _track(
+        self, problem: Problem, omega: np.ndarray, inv_hessian: np.ndarray | None
+    ) -> Refined:
+        """A tracking estimate: a few BFGS steps from ``omega`` (rad/s) at full resolution."""
+        config = self.config
+        return refine(
+            problem, omega, 1, config, config.track_iterations, inv_hessian, config.track_xtol_px
+        )
+
+    def _take_search(self, problem: Problem, tracked: Refined, t_us: int) -> Refined:
+        """``tracked``, or the pending search's ω refined on ``problem`` where its lag is up
+        at ``t_us`` and it sharpens the window more."""
+        if self._search_job is None or t_us < self._search_job[1]:
+            return tracked
+        found = self._search_job[0].result()
+        self._search_job = None
+        candidate = self._track(problem, found.omega, None)
+        return candidate if candidate.contrast > tracked.contrast else tracked
+
+    def _submit(self, function: Callable[..., Any], *args: Any) -> Future:
+        """``function(*args)`` on the worker thread (started at the first job)."""
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(1, thread_name_prefix="cmax")
+        return self._worker.submit(function, *args)
+
+    def _job_rng(self, kind: int, t_us: int) -> np.random.Generator:
+        """The subsampling generator of a worker job of ``kind`` at ``t_us``: its own, so that
+        jobs never share one with the main thread."""
+        return np.random.default_rng((self.config.seed, kind, t_us))
 
     def _at_end(self, t_us: int, span_us: float, omega: np.ndarray, age_s: float) -> np.ndarray:
         """ω (rad/s) at ``t_us`` under a linearly changing rate, fitted to the events of
