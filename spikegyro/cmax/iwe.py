@@ -16,19 +16,25 @@ angle: with the left Jacobian ``J(φ) = I + b [φ]x + c [φ]x²`` of SO(3),
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numba
 import numpy as np
 
 
+@functools.lru_cache(maxsize=64)
 def gaussian_taps(sigma: float) -> np.ndarray:
-    """Normalised 1-D Gaussian taps to 3σ (σ in pixels); ``[1.0]`` when σ <= 0."""
+    """Normalised 1-D Gaussian taps to 3σ (σ in pixels); ``[1.0]`` when σ <= 0. Cached (each
+    objective call asks for them): read-only."""
     if sigma <= 0:
-        return np.ones(1)
-    radius = math.ceil(3.0 * sigma)
-    taps = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
-    return taps / taps.sum()
+        taps = np.ones(1)
+    else:
+        radius = math.ceil(3.0 * sigma)
+        taps = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
+        taps /= taps.sum()
+    taps.flags.writeable = False
+    return taps
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)

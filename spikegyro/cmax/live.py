@@ -277,7 +277,10 @@ class CMaxEstimator:
         """Buffer indices of the events ``i0:i1`` of the buffer's times, hot pixels left out,
         evenly thinned to ``track_events``; None when fewer than ``min_events`` remain."""
         buf, config = self._buffer, self.config
-        index = np.arange(buf.start + i0, buf.start + i1)
+        # A stride first where the window holds many times the budget (high event rates):
+        # the hot-pixel lookup then costs O(budget), not O(window).
+        stride = max(1, (i1 - i0) // (2 * config.track_events))
+        index = np.arange(buf.start + i0, buf.start + i1, stride)
         index = index[~self._hot.hot[buf.pix[index]]]
         if len(index) < max(config.min_events, 2):
             return None
@@ -416,7 +419,7 @@ class CMaxEstimator:
         buf, config = self._buffer, self.config
         t = buf.times()
         i1 = int(np.searchsorted(t, t_us, side="right"))
-        i0 = int(np.searchsorted(t, t_us - config.bend_window * span_us, side="left"))
+        i0 = int(np.searchsorted(t, math.ceil(t_us - config.bend_window * span_us), "left"))
         index = self._kept(i0, i1)
         if index is None:
             return omega

@@ -102,7 +102,8 @@ class WindowPolicy:
                 by_motion = 1e6 * self.target_px / speed_px_s
             shortest = max(self.min_ms, self.search_ms if searching else 0.0)
             window_us = min(max(by_count, by_motion, 1000.0 * shortest), 1000.0 * self.max_ms)
-        return int(np.searchsorted(t_us, t_ref_us - window_us, side="right"))
+        # An integer bound: a float one would convert every buffered time to float first.
+        return int(np.searchsorted(t_us, math.floor(t_ref_us - window_us), side="right"))
 
 
 class EventBuffer:
