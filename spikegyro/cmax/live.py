@@ -281,7 +281,7 @@ class CMaxEstimator:
         # the hot-pixel lookup then costs O(budget), not O(window).
         stride = max(1, (i1 - i0) // (2 * config.track_events))
         index = np.arange(buf.start + i0, buf.start + i1, stride)
-        index = index[~self._hot.hot[buf.pix[index]]]
+        index = index[~self._hot.is_hot(buf.pix[index])]
         if len(index) < max(config.min_events, 2):
             return None
         if len(index) > config.track_events:

@@ -194,8 +194,14 @@ class HotPixels:
     """Streaming hot-pixel detector: per-pixel event counts decaying with ``tau_s``.
 
     A pixel is hot when its count exceeds ``factor`` times the 95th percentile of the counts of
-    the pixels that fired, and ``min_count`` (as :func:`hot_pixel_mask` on a window); the
-    threshold is recomputed every ``every_s`` of event time. Factor <= 0 marks none.
+    the pixels that fired in the latest batch, and ``min_count`` (as :func:`hot_pixel_mask` on
+    a window); the threshold is recomputed every ``every_s`` of event time. Factor <= 0 marks
+    none.
+
+    Every operation costs O(batch), none O(pixels) (a megapixel's worth per batch would cost
+    more than the rest of the engine): counts are kept in units of a reference time and a batch
+    adds exp(its age / tau), so nothing decays the array but a rescale when those units grow
+    past 1e100 (every minute or so); the threshold is kept in the same units.
     """
 
     def __init__(
@@ -207,32 +213,39 @@ class HotPixels:
         every_s: float = 0.05,
     ) -> None:
         self.counts = np.zeros(pixels)
-        self.hot = np.zeros(pixels, dtype=bool)
         self.factor, self.tau_us, self.min_count = factor, tau_s * 1e6, min_count
         self.every_us = every_s * 1e6
-        self._decayed_at: int | None = None
+        self._reference_us: int | None = None
         self._checked_at: int | None = None
+        self._threshold = math.inf  # in the counts' units
 
     def add(self, pix: np.ndarray, t_last_us: int) -> None:
         """Count a batch of events (flat pixel indices) ending at ``t_last_us``."""
-        if self.factor <= 0:
+        if self.factor <= 0 or not len(pix):
             return
-        if self._decayed_at is None:
-            self._decayed_at = t_last_us
-        # Counts are kept in units of their last decay: a batch adds exp(its age / tau), and the
-        # array decays only when the threshold is checked. Each of those costs O(pixels), a
-        # megapixel's worth: every batch would cost more than the rest of the engine.
-        weight = math.exp((t_last_us - self._decayed_at) / self.tau_us)
-        np.add.at(self.counts, pix, weight)  # O(batch), where a bincount costs O(pixels)
+        if self._reference_us is None:
+            self._reference_us = t_last_us
+        scale = math.exp((t_last_us - self._reference_us) / self.tau_us)
+        if scale > 1e100:
+            self.counts /= scale
+            self._threshold /= scale
+            self._reference_us, scale = t_last_us, 1.0
+        np.add.at(self.counts, pix, scale)
         if self._checked_at is not None and t_last_us - self._checked_at < self.every_us:
             return
-        self.counts *= 1.0 / weight
-        self._decayed_at = self._checked_at = t_last_us
-        active = self.counts[self.counts > 0.5]
-        if len(active):
-            sample = active[:: max(1, len(active) // 20_000)]  # an even sample's percentile
-            threshold = max(self.min_count, self.factor * float(np.percentile(sample, 95)))
-            self.hot = self.counts > threshold
+        self._checked_at = t_last_us
+        fired = self.counts[np.unique(pix)] / scale
+        threshold = max(self.min_count, self.factor * float(np.percentile(fired, 95)))
+        self._threshold = threshold * scale
+
+    def is_hot(self, pix: np.ndarray) -> np.ndarray:
+        """Whether each of the flat pixel indices ``pix`` is hot (bool, same shape)."""
+        return self.counts[pix] > self._threshold
+
+    @property
+    def hot(self) -> np.ndarray:
+        """Every pixel's verdict (bool, O(pixels))."""
+        return self.counts > self._threshold
 
 
 def hot_pixel_mask(
