@@ -207,6 +207,8 @@ def test_adapt_trains_on_a_real_recording_and_writes_the_best_weights(simulated,
     assert rows[0]["step"] == "0" and float(rows[0]["val_real_gain"]) > 0
     assert [r["step"] for r in rows if r["val_real_gain"]] == ["0", "2", "4"]
     assert all(np.isfinite(float(r["loss"])) for r in rows[1:])
+    # Real windows only: the whole loss is the real windows' part.
+    assert all(float(r["real_loss"]) == pytest.approx(float(r["loss"]), rel=1e-4) for r in rows[1:])
     assert adapted.result.steps == 4
     assert adapted.gain_end >= adapted.gain_start
     assert read_checkpoint(out)["model"] == "snn6"

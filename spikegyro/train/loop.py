@@ -336,6 +336,8 @@ class _Progress:
     t0: float  # monotonic time at which the run (resumed time included) started
     loss_sum: float = 0.0
     loss_n: int = 0
+    real_sum: float = 0.0  # the real windows' loss (weighted), since the last log row
+    real_n: int = 0
     last_loss: float = math.nan
     val: dict[str, float] = field(default_factory=dict)
     stopped_early: bool = False
@@ -540,7 +542,7 @@ def _steps(
     net.train()
     for inputs, targets, subs in _batches(run, loader, events):
         x, y = device_batch(inputs, targets, spec, ctx.device, run.compute == "sparse")
-        extra = _real_loss(run, subs) if subs else None
+        extra = _real_loss(run, subs, state) if subs else None
         loss = train_step(net, run.optimizer, x, y, config.train_loss_start_step,
                           config.grad_clip, amp, extra)  # fmt: skip
         run.scheduler.step()
@@ -564,24 +566,36 @@ def _steps(
             break
 
 
-def _real_loss(run: _Run, subs: list[Any]) -> Any:
-    """The self-supervised loss of a step's real windows, as a function of their outputs."""
+def _real_loss(run: _Run, subs: list[Any], state: _Progress) -> Any:
+    """The self-supervised loss of a step's real windows, as a function of their outputs; its
+    value is added to the log row's ``real_loss``."""
     assert run.real is not None
     config = run.config
-    return lambda omega: (
-        config.real_weight * batch_loss(omega, subs, run.real.loss, config.real_loss)
-    )
+
+    def loss(omega: Any) -> Any:
+        value = config.real_weight * batch_loss(omega, subs, run.real.loss, config.real_loss)
+        state.real_sum += float(value.detach())
+        state.real_n += 1
+        return value
+
+    return loss
 
 
 def _log_row(run: _Run, state: _Progress) -> dict[str, Any]:
     """The loss (averaged over processes) and rates since the last row; restarts the average."""
     state.last_loss = distributed.mean_across(state.loss_sum / state.loss_n, run.ctx)
     state.loss_sum, state.loss_n = 0.0, 0
+    real = math.nan
+    if run.real is not None:  # on every process alike: the mean is a collective call
+        local = state.real_sum / state.real_n if state.real_n else math.nan
+        real = distributed.mean_across(local, run.ctx)
+        state.real_sum, state.real_n = 0.0, 0
     elapsed = time.monotonic() - state.t0
     rate = (state.step - run.start_step) * run.config.batch_size / max(elapsed - run.elapsed0, 1e-9)
     return {
         "step": state.step,
         "loss": f"{state.last_loss:.6g}",
+        "real_loss": "" if math.isnan(real) else f"{real:.6g}",
         "lr": f"{run.scheduler.get_last_lr()[0]:.6g}",
         "elapsed_s": f"{elapsed:.1f}",
         "samples_per_s": f"{rate:.2f}",

@@ -26,6 +26,7 @@ from spikegyro.train.throughput import BareStep
 LOG_FIELDS = (
     "step",
     "loss",
+    "real_loss",
     "lr",
     "val_loss",
     "val_median_rel",
