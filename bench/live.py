@@ -8,7 +8,7 @@ at or before its time) was sent. The same recording run from the file in the sam
 baseline: its estimates must be identical, and its CPU time per second of events is what one
 core needs to keep up. Needs spikegyro[live].
 
-    python bench/live.py [EVENTS] [--intrinsics 245 245 120 90] [--core 1]
+    python bench/live.py [EVENTS] [--intrinsics 245 245 120 90] [--core 1] [--figure latency.png]
 """
 
 from __future__ import annotations
@@ -60,6 +60,7 @@ def main() -> None:
     parser.add_argument("events", nargs="?", type=Path, default=DEFAULT)
     parser.add_argument("--intrinsics", nargs=4, default=["245", "245", "120", "90"])
     parser.add_argument("--core", type=int, default=1, help="the core predict runs on")
+    parser.add_argument("--figure", type=Path, help="Plot each estimate's latency here (PNG).")
     args = parser.parse_args()
     options = ["--intrinsics", *args.intrinsics]
     with tempfile.TemporaryDirectory() as tmp:
@@ -96,6 +97,25 @@ def main() -> None:
         f"{latency_ms.max():.1f} ms; 95th percentile / 20 ms target = {p95 / 20:.2f}"
     )
     print("\n".join(line for line in err.splitlines() if "behind" in line or "estimates (" in line))
+    if args.figure:
+        plot_latency(args.figure, (t_us - ev.t[0]) / 1e6, latency_ms, args.events.name)
+
+
+def plot_latency(path: Path, t_s: np.ndarray, latency_ms: np.ndarray, name: str) -> None:
+    """Each estimate's latency (ms) against its time in the stream (s), with the target."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 3))
+    ax.plot(t_s, latency_ms, ".", ms=3, label="estimate")
+    ax.axhline(20, color="k", lw=0.8, ls="--", label="20 ms target (95th percentile)")
+    ax.set(xlabel="stream time (s)", ylabel="latency (ms)", yscale="log",
+           title=f"predict dv://... on one core: {name}")  # fmt: skip
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
 
 
 if __name__ == "__main__":
