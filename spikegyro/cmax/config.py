@@ -65,7 +65,7 @@ class CMaxConfig:
             ``search_every_s``; below half this share, at the next estimate.
         accelerating: each estimate is then refined once more under a rotation whose rate
             changes linearly (ω at the window's end and its rate of change α,
-            :func:`~spikegyro.cmax.iwe.contrast_accelerating`), warm-started from the window's
+            :func:`~spikegyro.cmax.iwe.warp`), warm-started from the window's
             mean rate and the previous α, and reports ω at the window's end instead of the
             window's mean rate.
         bend_window: that fit uses the events of this many times the window's span (the bend

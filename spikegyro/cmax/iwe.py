@@ -140,12 +140,17 @@ def warp(
     bx: np.ndarray,
     by: np.ndarray,
     dt: np.ndarray,
-    omega: np.ndarray,
+    params: np.ndarray,
     intrinsics: np.ndarray,
     scale: float,
     with_gradient: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Warp rays ``(bx, by, 1)`` fired ``dt`` s before t_ref to t_ref under ω (rad/s).
+    """Warp rays ``(bx, by, 1)`` fired ``dt`` s before t_ref to t_ref.
+
+    ``params``: ω (3,) rad/s, a constant rotation; or (6,), ω_ref (rad/s) and α (rad/s²) of a
+    rotation whose rate changes linearly, ``ω(t) = ω_ref + α (t - t_ref)``. An event ``dt`` s
+    before t_ref is rotated by ``φ = -(ω_ref dt - α dt²/2)``, the integral of ω(t) over ``dt``
+    (exact when α is parallel to ω, to second order in the angle otherwise).
 
     Args:
         intrinsics: ``(fx, fy, cx, cy)`` pixels of the full-resolution pinhole.
@@ -153,65 +158,32 @@ def warp(
 
     Returns:
         ``(u, v, valid, du, dv)``: pixel coordinates (N,), whether the ray still points forward
-        (N,), and, with ``with_gradient``, d u/dω and d v/dω (N, 3) in px per rad/s.
+        (N,), and, with ``with_gradient``, d u/d params and d v/d params (N, 3 or 6) in px per
+        unit (``dφ/dω = -dt``, ``dφ/dα = dt²/2``).
     """
     n = bx.shape[0]
+    k = params.shape[0]
     inv = 1.0 / scale
     u = np.empty(n)
     v = np.empty(n)
     valid = np.empty(n, dtype=np.bool_)
     m = n if with_gradient else 0
-    du = np.zeros((m, 3))
-    dv = np.zeros((m, 3))
+    du = np.zeros((m, k))
+    dv = np.zeros((m, k))
     for i in range(n):
         d = dt[i]
+        h = 0.5 * d * d if k == 6 else 0.0
+        a0, a1, a2 = (params[3], params[4], params[5]) if k == 6 else (0.0, 0.0, 0.0)
         u[i], v[i], valid[i], u0, u1, u2, v0, v1, v2 = _rotate_project(
-            -omega[0] * d, -omega[1] * d, -omega[2] * d, bx[i], by[i], intrinsics, inv,
-            with_gradient,
-        )  # fmt: skip
-        if with_gradient:  # dφ/dω = -dt
-            du[i, 0], du[i, 1], du[i, 2] = d * u0, d * u1, d * u2
-            dv[i, 0], dv[i, 1], dv[i, 2] = d * v0, d * v1, d * v2
-    return u, v, valid, du, dv
-
-
-@numba.njit(cache=True, nogil=True, fastmath=True)
-def warp_accelerating(
-    bx: np.ndarray,
-    by: np.ndarray,
-    dt: np.ndarray,
-    params: np.ndarray,
-    intrinsics: np.ndarray,
-    scale: float,
-    with_gradient: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Warp under a rotation whose rate changes linearly: ``ω(t) = ω_ref + α (t - t_ref)``.
-
-    ``params`` is ``(ω_ref (rad/s), α (rad/s²))``, 6 values. An event ``dt`` s before t_ref is
-    rotated by ``φ = -(ω_ref dt - α dt²/2)``, the integral of ω(t) over ``dt`` (exact when α is
-    parallel to ω, to second order in the angle otherwise). Returns as :func:`warp`, with the
-    gradients (N, 6) wrt ``params``: ``dφ/dω_ref = -dt``, ``dφ/dα = dt²/2``.
-    """
-    n = bx.shape[0]
-    inv = 1.0 / scale
-    u = np.empty(n)
-    v = np.empty(n)
-    valid = np.empty(n, dtype=np.bool_)
-    m = n if with_gradient else 0
-    du = np.zeros((m, 6))
-    dv = np.zeros((m, 6))
-    for i in range(n):
-        d = dt[i]
-        h = 0.5 * d * d
-        u[i], v[i], valid[i], u0, u1, u2, v0, v1, v2 = _rotate_project(
-            -params[0] * d + params[3] * h, -params[1] * d + params[4] * h,
-            -params[2] * d + params[5] * h, bx[i], by[i], intrinsics, inv, with_gradient,
+            -params[0] * d + a0 * h, -params[1] * d + a1 * h, -params[2] * d + a2 * h,
+            bx[i], by[i], intrinsics, inv, with_gradient,
         )  # fmt: skip
         if with_gradient:
             du[i, 0], du[i, 1], du[i, 2] = d * u0, d * u1, d * u2
             dv[i, 0], dv[i, 1], dv[i, 2] = d * v0, d * v1, d * v2
-            du[i, 3], du[i, 4], du[i, 5] = -h * u0, -h * u1, -h * u2
-            dv[i, 3], dv[i, 4], dv[i, 5] = -h * v0, -h * v1, -h * v2
+            if k == 6:
+                du[i, 3], du[i, 4], du[i, 5] = -h * u0, -h * u1, -h * u2
+                dv[i, 3], dv[i, 4], dv[i, 5] = -h * v0, -h * v1, -h * v2
     return u, v, valid, du, dv
 
 
@@ -251,28 +223,6 @@ def contrast(
     by: np.ndarray,
     dt: np.ndarray,
     weights: np.ndarray,
-    omega: np.ndarray,
-    intrinsics: np.ndarray,
-    scale: float,
-    width: int,
-    height: int,
-    taps: np.ndarray,
-    with_gradient: bool,
-) -> tuple[float, np.ndarray]:
-    """Variance of the blurred IWE at ``1/scale`` resolution and its gradient (3,) in 1/(rad/s).
-
-    ``width``, ``height`` are the IWE's size at that resolution; ``taps`` the Gaussian's.
-    """
-    u, v, valid, du, dv = warp(bx, by, dt, omega, intrinsics, scale, with_gradient)
-    return _variance(u, v, valid, du, dv, weights, width, height, taps, with_gradient)
-
-
-@numba.njit(cache=True, nogil=True, fastmath=True)
-def contrast_accelerating(
-    bx: np.ndarray,
-    by: np.ndarray,
-    dt: np.ndarray,
-    weights: np.ndarray,
     params: np.ndarray,
     intrinsics: np.ndarray,
     scale: float,
@@ -281,9 +231,12 @@ def contrast_accelerating(
     taps: np.ndarray,
     with_gradient: bool,
 ) -> tuple[float, np.ndarray]:
-    """:func:`contrast` under :func:`warp_accelerating`'s ``params`` (ω_ref rad/s, α rad/s²);
-    the gradient (6,) is wrt them."""
-    u, v, valid, du, dv = warp_accelerating(bx, by, dt, params, intrinsics, scale, with_gradient)
+    """Variance of the blurred IWE at ``1/scale`` resolution under :func:`warp`'s ``params``
+    (ω, or ω_ref and α) and its gradient wrt them.
+
+    ``width``, ``height`` are the IWE's size at that resolution; ``taps`` the Gaussian's.
+    """
+    u, v, valid, du, dv = warp(bx, by, dt, params, intrinsics, scale, with_gradient)
     return _variance(u, v, valid, du, dv, weights, width, height, taps, with_gradient)
 
 

@@ -91,12 +91,11 @@ class Problem:
         """IWE variance at pyramid ``scale`` (and its gradient in 1/(rad/s)).
 
         ``omega``: (3,) rad/s, a constant rotation; or (6,), ω at t_ref (rad/s) and its rate of
-        change α (rad/s²) (:func:`~spikegyro.cmax.iwe.contrast_accelerating`; the gradient is
+        change α (rad/s²) (:func:`~spikegyro.cmax.iwe.warp`; the gradient is
         then wrt both).
         """
         level = self.level(scale)
-        function = iwe.contrast if len(omega) == 3 else iwe.contrast_accelerating
-        return function(
+        return iwe.contrast(
             self.bx,
             self.by,
             self.dt,
