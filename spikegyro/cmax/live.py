@@ -354,19 +354,17 @@ class CMaxEstimator:
             buf.bx[index], buf.by[index], dt, np.ones(len(index)), self._intrinsics, width, height,
             self._base,
         )  # fmt: skip
-        if self._omega is None or (searching and self._doubt == 0.0):
+        if searching:
+            self._last_search_us, self.searches = t_us, self.searches + 1
+        if self._omega is None or self._doubt == 0.0:
             # Nothing to track from, or tracking lost: this search is waited for.
             found = search(problem, config, self._omega, grid=True, rng=self._rng)
-            self._last_search_us = t_us
-            self.searches += 1
             self._search_job = None
         else:
             if searching:
                 rng = self._job_rng(0, t_us)
                 job = self._submit(search, problem, config, self._omega, True, rng)
                 self._search_job = (job, t_us + round(1000 * config.search_lag_ms))
-                self._last_search_us = t_us
-                self.searches += 1
             found = self._track(problem, self._omega, self._hessian)
             found = self._take_search(problem, found, t_us)
         omega = self._omega = found.omega
