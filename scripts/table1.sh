@@ -8,8 +8,10 @@
 # first when it is not there yet (seed 11 gives the same sequences everywhere; ~2.5 minutes on 16
 # cores), so no step depends on files that an earlier command left behind.
 #
-#   scripts/table1.sh WORK_DIR row MODEL INPUT MIN   # train MIN minutes, score best.pt, keep it
-#                                                    #   e.g. resnet50 voxel 6; ann6 voxel 6
+#   scripts/table1.sh WORK_DIR row MODEL INPUT MIN   # train until the run has MIN minutes, score
+#                                                    #   best.pt, keep it; again with a larger MIN
+#                                                    #   continues the run (e.g. resnet50 voxel 9,
+#                                                    #   then 18, 27, ...)
 #   scripts/table1.sh WORK_DIR score                 # score the bundled snn6 and ann6, report
 #                                                    #   them with every row kept so far
 #   scripts/table1.sh WORK_DIR data                  # only simulate the dataset
@@ -25,7 +27,7 @@
 set -eo pipefail
 export PYTHONUNBUFFERED=1
 S="${SPIKEGYRO:-python3 -m spikegyro}"
-usage() { sed -n '11,15p' "$0" | sed 's/^# *//' >&2; exit 2; }
+usage() { sed -n '11,17p' "$0" | sed 's/^# *//' >&2; exit 2; }
 [ $# -ge 2 ] || usage
 WORK=$1
 shift
@@ -61,14 +63,17 @@ row)
     [ $# -eq 4 ] || usage
     ensure_data
     run=$RUNS/run-$2-$3
-    [ -f "$run/last.pt" ] && { echo "$run already holds a run; remove it first" >&2; exit 2; }
-    # bfloat16 autocast speeds ResNet-50 up on an H100 and slows ANN-6 down (BENCHMARKS.md);
-    # ${T1_TRAIN_ARGS} lets the CPU check shrink the run (--device cpu --sensor-width ...).
-    amp="--amp off"
-    [ "$2" = resnet50 ] && amp="--amp bf16"
-    $S train --data $DATA --out "$run" --preset paper --model "$2" --input "$3" $amp \
-        --max-minutes "$4" --val-every 1000 --val-windows 200 --log-every 100 \
-        --num-workers "${T1_WORKERS:-15}" ${T1_TRAIN_ARGS} 2>&1 | grep -v "━"
+    if [ -f "$run/resume.pt" ]; then  # a run already there goes on until it has MIN minutes
+        $S train --data $DATA --out "$run" --resume --max-minutes "$4" 2>&1 | grep -v "━"
+    else
+        # bfloat16 autocast speeds ResNet-50 up on an H100 and slows ANN-6 down (BENCHMARKS.md);
+        # ${T1_TRAIN_ARGS} sets CPU runs apart (--device cpu --threads 1 --batch-size 16 ...).
+        amp="--amp off"
+        [ "$2" = resnet50 ] && amp="--amp bf16"
+        $S train --data $DATA --out "$run" --preset paper --model "$2" --input "$3" $amp \
+            --max-minutes "$4" --val-every 1000 --val-windows 200 --log-every 100 \
+            --num-workers "${T1_WORKERS:-15}" ${T1_TRAIN_ARGS} 2>&1 | grep -v "━"
+    fi
     row=$KEEP/run-$2-$3
     mkdir -p "$row" && cp "$run"/{config.json,log.csv,throughput.json,loss.png} "$row"/
     case "$2-$3" in  # the report's names (and colors) of the paper's rows
