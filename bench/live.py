@@ -9,6 +9,11 @@ baseline: its estimates must be identical, and its CPU time per second of events
 core needs to keep up. Needs spikegyro[live].
 
     python bench/live.py [EVENTS] [--intrinsics 245 245 120 90] [--core 1] [--figure latency.png]
+        [--reference offline.csv]
+
+``--reference``: a prediction file of the same recording (e.g. ``predict --method cmax
+--offline``); the estimates' mean Euclidean difference from it (interpolated at their times,
+from 0.5 s into the stream on) is printed too.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ import numpy as np
 
 from spikegyro.events.io import read_recording
 from spikegyro.events.replay import start_replay
+from spikegyro.stream.writer import read_predictions
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT = ROOT.parent / "shared" / "real" / "rueckauer2016_translBoxes" / "events.txt"
@@ -61,6 +67,7 @@ def main() -> None:
     parser.add_argument("--intrinsics", nargs=4, default=["245", "245", "120", "90"])
     parser.add_argument("--core", type=int, default=1, help="the core predict runs on")
     parser.add_argument("--figure", type=Path, help="Plot each estimate's latency here (PNG).")
+    parser.add_argument("--reference", type=Path, help="Prediction file to compare with.")
     args = parser.parse_args()
     options = ["--intrinsics", *args.intrinsics]
     with tempfile.TemporaryDirectory() as tmp:
@@ -97,8 +104,29 @@ def main() -> None:
         f"{latency_ms.max():.1f} ms; 95th percentile / 20 ms target = {p95 / 20:.2f}"
     )
     print("\n".join(line for line in err.splitlines() if "behind" in line or "estimates (" in line))
+    if args.reference:
+        print(difference(file_rows(want), args.reference, ev.t[0]))
     if args.figure:
         plot_latency(args.figure, (t_us - ev.t[0]) / 1e6, latency_ms, args.events.name)
+
+
+def file_rows(lines: list[str]) -> np.ndarray:
+    """(n, 4) t (s), ω (rad/s) of a CSV prediction file's lines."""
+    return np.array([[float(v) for v in line.split(",")[:4]] for line in lines[1:]])
+
+
+def difference(rows: np.ndarray, reference: Path, t0_us: int) -> str:
+    """The mean Euclidean difference (deg/s) of ``rows`` from ``reference`` from 0.5 s on."""
+    ref = read_predictions(reference)
+    t_s = rows[:, 0]
+    keep = t_s >= t0_us / 1e6 + 0.5
+    ref_s = ref["t_us"] / 1e6
+    truth = np.stack([np.interp(t_s[keep], ref_s, ref["omega"][:, k]) for k in range(3)], 1)
+    gap = np.degrees(np.linalg.norm(rows[keep, 1:] - truth, axis=1))
+    return (
+        f"mean Euclidean difference from {reference.name}: {gap.mean():.2f} deg/s "
+        f"({keep.sum()} estimates)"
+    )
 
 
 def plot_latency(path: Path, t_s: np.ndarray, latency_ms: np.ndarray, name: str) -> None:

@@ -142,7 +142,7 @@ def test_estimator_is_causal_and_batch_invariant() -> None:
 
 def test_background_searches_and_tests_do_not_depend_on_their_timing(monkeypatch) -> None:
     events, _, second = _two_rotations()
-    config = CMaxConfig(search_every_s=0.04, search_lag_ms=30.0)
+    config = CMaxConfig(search_every_s=0.04, search_lag_ms=30.0, collapse_gap_ms=0.0)
     ref = CMaxEstimator(CAMERA, config, t0_us=0)
     expected = ref.run(events, batch_us=5000)
     assert ref.searches >= 3  # the first one and at least two on the worker
@@ -165,6 +165,29 @@ def test_background_searches_and_tests_do_not_depend_on_their_timing(monkeypatch
     np.testing.assert_array_equal(got.ill_posed, expected.ill_posed)
     at = {int(t): w for t, w in zip(got.t_us, got.omega, strict=True)}
     assert_close_omega(at[190_000], second)
+
+
+def test_searches_after_a_collapse_of_the_gain_keep_to_their_budget() -> None:
+    # A rotation, then a second of pure noise: the contrast gain collapses at every estimate.
+    scene = point_track_events(np.radians([0.0, 100.0, 0.0]), seed=3, duration_s=0.3, points=1000)
+    rng = np.random.default_rng(0)
+    n = int(len(scene) / 0.3)
+    noise = EventArray(
+        rng.integers(0, scene.width, n).astype(scene.x.dtype),
+        rng.integers(0, scene.height, n).astype(scene.y.dtype),
+        np.sort(rng.integers(300_000, 1_300_000, n)).astype(scene.t.dtype),
+        rng.integers(0, 2, n).astype(scene.p.dtype),
+        scene.width,
+        scene.height,
+    )
+    events = EventArray.concatenate([scene, noise])
+    unlimited = CMaxEstimator(CAMERA, CMaxConfig(collapse_gap_ms=0.0), t0_us=0)
+    unlimited.run(events, batch_us=5000)
+    assert unlimited.searches > 50  # one at nearly every estimate of the noise
+    budget = CMaxEstimator(CAMERA, CMaxConfig(collapse_gap_ms=250.0), t0_us=0)
+    budget.run(events, batch_us=5000)
+    # The first search, two in a row, then one per 250 ms over the second of noise.
+    assert 3 <= budget.searches <= 1 + 2 + 4
 
 
 def test_too_few_events_are_flagged_and_the_first_estimate_waits() -> None:

@@ -28,7 +28,7 @@ class OneRotationTest:
         max_events: events (random subsample) each half keeps at most (speed).
         scale: image downscale factor the halves are compared at (speed).
         every_ms: the live engine runs the test at most this often (ms of event time), on a
-            second thread, its verdict applies from the next estimate until the next test's
+            thread of its own, its verdict applies from the next estimate until the next test's
             (the stream's first at once) (speed).
     """
 
@@ -55,14 +55,20 @@ class CMaxConfig:
         track_xtol_px: a tracking estimate stops once a step moves edges less than this, px.
         search_every_s: the global search runs at the first estimate and then every this many
             seconds of event time (0: only at the first), the tracked estimate competing.
-        search_lag_ms: a search after the first runs on a second thread, and its ω is refined
-            on, and competes at, the first estimate this many ms of event time after the
-            search's own (the engine waits for it there).
+        search_lag_ms: a search after the first runs on a thread of lowest priority, and its ω
+            is refined on, and competes at, the first estimate this many ms of event time after
+            the search's own (the engine waits for it there: long enough that on one core the
+            search fits in the time the estimates leave).
         min_motion_px: estimates moving edges by less than this over their window are flagged
             ill-posed (too little motion to tell from none).
         gain_drop: when an estimate's contrast gain above 1 falls below this share of its
             recent best, or it is ill-posed, the next search comes after a fifth of
-            ``search_every_s``; below half this share, at the next estimate.
+            ``search_every_s``; below half this share, at the next estimate (in line: the
+            motion may have changed abruptly) while their budget allows.
+        collapse_gap_ms: that budget: two such searches may follow in a row, and one more is
+            allowed per this many ms of event time (0: no limit). On scenes of weak contrast
+            the gain falls that far every few estimates, and each search costs tens of
+            estimates' work.
         accelerating: each estimate is then refined once more under a rotation whose rate
             changes linearly (ω at the window's end and its rate of change α,
             :func:`~spikegyro.cmax.iwe.warp`), warm-started from the window's
@@ -106,10 +112,11 @@ class CMaxConfig:
     track_events: int = 10_000
     track_iterations: int = 2
     track_xtol_px: float = 0.05
-    search_every_s: float = 1.0
-    search_lag_ms: float = 200.0
+    search_every_s: float = 3.0
+    search_lag_ms: float = 1000.0
     min_motion_px: float = 1.0
     gain_drop: float = 0.6
+    collapse_gap_ms: float = 250.0
     accelerating: bool = False
     bend_window: float = 2.0
     bend_iterations: int = 4

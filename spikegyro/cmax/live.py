@@ -16,13 +16,16 @@ from the events in ``(t - W, t]`` only. Per estimate:
 
 The other global searches (every ``search_every_s``, sooner when tracking is in doubt) and the
 one-rotation test cost tens of estimates' work each. Run in line they would hold up the
-estimates behind them by hundreds of milliseconds, so they run on a second thread (the Numba
-code releases the GIL) on a copy of their window, and their results are taken up at a fixed
-later point of event time: a search's at the first estimate ``search_lag_ms`` after it
+estimates behind them by hundreds of milliseconds, so they run on threads of their own (the
+Numba code releases the GIL) on a copy of their window, and their results are taken up at a
+fixed later point of event time: a search's at the first estimate ``search_lag_ms`` after it
 started (its ω refined on that estimate's window, competing with the tracked one), a test's
 verdict at the next estimate (the stream's first verdict at once). The main thread waits
 there if the job is not done, so the estimates do not depend on threads, timing or batching,
-and a file gives the same estimates as a live stream of it.
+and a file gives the same estimates as a live stream of it. Searches and tests have a thread
+each, so that a verdict never queues behind a search, and the searches' thread runs at the
+lowest scheduling priority (where the OS allows it): on a single core it then takes only the
+time that the estimates leave, instead of holding them up while it runs.
 
 Memory is bounded: only the events of the longest window are kept, as rays, in a buffer that
 grows to the largest window seen and is reused.
@@ -30,7 +33,10 @@ grows to the largest window seen and is reused.
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import threading
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
@@ -59,6 +65,15 @@ from spikegyro.stream.estimator import (
 )
 
 _NEVER = -(1 << 62)
+_SEARCH, _TEST = 0, 1  # the kinds of background job (each has its thread and RNG streams)
+_COLLAPSE_BURST = 2.0  # searches after a collapse of the gain that may follow in a row
+
+
+def _lowest_priority() -> None:
+    """Give the calling thread the lowest scheduling priority, where the OS has per-thread
+    priorities (Linux); elsewhere it keeps the process's."""
+    with contextlib.suppress(AttributeError, OSError):
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
 
 
 class CMaxEstimator:
@@ -82,10 +97,11 @@ class CMaxEstimator:
         self.config = config or CMaxConfig()
         rate = f"{self.config.rate_hz:g} Hz" if self.config.rate_hz > 0 else "one per batch"
         self.label = (
-            f"contrast maximization, causal windows, {rate} (CPU, 1 thread + 1 for searches)"
+            f"contrast maximization, causal windows, {rate} (CPU, 1 thread + 2 for searches "
+            "and tests)"
         )
         self.confidence = True
-        self._worker: ThreadPoolExecutor | None = None
+        self._workers: dict[int, ThreadPoolExecutor] = {}
         self.reset(t0_us)
 
     def reset(self, t0_us: int | None = None) -> None:
@@ -105,6 +121,7 @@ class CMaxEstimator:
         self._bend_hessian: np.ndarray | None = None
         self._doubt = 1.0
         self._best_gain = 0.0
+        self._credit = (float(_COLLAPSE_BURST), 0)  # collapse searches allowed, as of when (µs)
         self._last_t: int | None = None
         self._buffer = EventBuffer()
         self._thinning = Thinning(self.config.ingest_rate)
@@ -248,12 +265,24 @@ class CMaxEstimator:
 
     def _search_due(self, t_us: int) -> bool:
         """Whether the estimate at ``t_us`` runs the global search: the first, then every
-        ``search_every_s``, sooner while tracking is in doubt."""
+        ``search_every_s``, sooner while tracking is in doubt, and after a collapse of the
+        contrast gain at once while the budget of such searches allows."""
         every = self.config.search_every_s * 1e6
         since = math.inf if self._last_search_us is None else t_us - self._last_search_us
-        if self._omega is None or self._doubt == 0.0:
+        if self._omega is None:
             return True
+        if self._doubt == 0.0:
+            return self._collapse_credit(t_us) >= 1.0
         return self._search_job is None and every > 0 and since >= every * self._doubt
+
+    def _collapse_credit(self, t_us: int) -> float:
+        """Searches after a collapse that the budget allows at ``t_us``: one more per
+        ``collapse_gap_ms``, at most ``_COLLAPSE_BURST`` in a row."""
+        gap_us = 1000 * self.config.collapse_gap_ms
+        if gap_us <= 0:
+            return math.inf
+        credit, since_us = self._credit
+        return min(_COLLAPSE_BURST, credit + (t_us - since_us) / gap_us)
 
     def _window(self, t_us: int, searching: bool) -> tuple[np.ndarray, float, int] | None:
         """Buffer indices of the (thinned) events of the window ending at ``t_us``, its span
@@ -304,8 +333,8 @@ class CMaxEstimator:
             self._not_one, self._test_job = self._test_job.result(), None
         test = config.one_rotation
         if test is not None and t_us - self._tested_us >= 1000 * test.every_ms:
-            rng = self._job_rng(1, t_us)
-            job = self._submit(not_one_rotation, problem, omega, moved, config, rng)
+            rng = self._job_rng(_TEST, t_us)
+            job = self._submit(_TEST, not_one_rotation, problem, omega, moved, config, rng)
             if self._tested_us == _NEVER:  # no verdict would cover the stream's start: wait
                 self._not_one = job.result()
             else:
@@ -356,14 +385,16 @@ class CMaxEstimator:
         )  # fmt: skip
         if searching:
             self._last_search_us, self.searches = t_us, self.searches + 1
-        if self._omega is None or self._doubt == 0.0:
+        if self._omega is None or (searching and self._doubt == 0.0):
             # Nothing to track from, or tracking lost: this search is waited for.
+            if self._omega is not None:
+                self._credit = (self._collapse_credit(t_us) - 1.0, t_us)
             found = search(problem, config, self._omega, grid=True, rng=self._rng)
             self._search_job = None
         else:
             if searching:
-                rng = self._job_rng(0, t_us)
-                job = self._submit(search, problem, config, self._omega, True, rng)
+                rng = self._job_rng(_SEARCH, t_us)
+                job = self._submit(_SEARCH, search, problem, config, self._omega, True, rng)
                 self._search_job = (job, t_us + round(1000 * config.search_lag_ms))
             found = self._track(problem, self._omega, self._hessian)
             found = self._take_search(problem, found, t_us)
@@ -397,11 +428,13 @@ class CMaxEstimator:
         candidate = self._track(problem, found.omega, None)
         return candidate if candidate.contrast > tracked.contrast else tracked
 
-    def _submit(self, function: Callable[..., Any], *args: Any) -> Future:
-        """``function(*args)`` on the worker thread (started at the first job)."""
-        if self._worker is None:
-            self._worker = ThreadPoolExecutor(1, thread_name_prefix="cmax")
-        return self._worker.submit(function, *args)
+    def _submit(self, kind: int, function: Callable[..., Any], *args: Any) -> Future:
+        """``function(*args)`` on the thread of jobs of ``kind`` (started at its first job)."""
+        if kind not in self._workers:
+            init = _lowest_priority if kind == _SEARCH else None
+            name = "cmax-search" if kind == _SEARCH else "cmax-test"
+            self._workers[kind] = ThreadPoolExecutor(1, name, initializer=init)
+        return self._workers[kind].submit(function, *args)
 
     def _job_rng(self, kind: int, t_us: int) -> np.random.Generator:
         """The subsampling generator of a worker job of ``kind`` at ``t_us``: its own, so that
