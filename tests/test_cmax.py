@@ -175,6 +175,53 @@ def test_blur_matches_scipy_gaussian_filter() -> None:
     np.testing.assert_allclose(got, expected, atol=1e-12)
 
 
+def test_grid_contrast_votes_to_the_nearest_pixel_and_moves_rays_to_first_order() -> None:
+    rng = np.random.default_rng(4)
+    n = 300
+    u, v = rng.uniform(0, WIDTH, n), rng.uniform(0, HEIGHT, n)
+    bx, by = (u - WIDTH / 2) / F, (v - HEIGHT / 2) / F
+    dt, weights = rng.uniform(0, 0.05, n), rng.uniform(0.5, 1.5, n)
+    taps = cmax_iwe.gaussian_taps(1.0)
+
+    def reference(uu: np.ndarray, vv: np.ndarray, scale: int) -> float:
+        # Nearest pixel of the scaled image (centres at integers), blurred, variance.
+        w, h = WIDTH // scale, HEIGHT // scale
+        xi = np.floor((uu + 0.5) / scale).astype(int)
+        yi = np.floor((vv + 0.5) / scale).astype(int)
+        inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+        image = np.zeros((h, w))
+        np.add.at(image, (yi[inside], xi[inside]), weights[inside])
+        return float(gaussian_filter(image, 1.0, mode="constant", truncate=3.0).var())
+
+    # The rotational motion field to first order (Longuet-Higgins & Prazdny): φ = -ω dt.
+    omega = np.array([0.3, -0.2, 0.5])
+    phi = -omega[:, None] * dt
+    du = F * (-bx * by * phi[0] + (1 + bx**2) * phi[1] - by * phi[2])
+    dv = F * (-(1 + by**2) * phi[0] + bx * by * phi[1] + bx * phi[2])
+    for scale in (1, 4):
+        got = cmax_iwe.grid_contrast(
+            bx, by, dt, weights, np.stack([np.zeros(3), omega]), INTRINSICS, float(scale),
+            WIDTH // scale, HEIGHT // scale, taps,
+        )  # fmt: skip
+        assert got[0] == pytest.approx(reference(u, v, scale), rel=1e-9)
+        assert got[1] == pytest.approx(reference(u + du, v + dv, scale), rel=1e-9)
+
+
+def test_grid_search_scores_the_true_rotation_above_its_neighbours() -> None:
+    truth = np.radians([60.0, -90.0, 120.0])
+    events = point_track_events(truth, seed=5, points=400)
+    problem = make_problem(
+        events, default_camera(WIDTH, HEIGHT), CMaxConfig(), np.random.default_rng(0)
+    )
+    step = np.radians(40.0)
+    candidates = np.array([truth] + [truth + step * e for e in np.vstack([np.eye(3), -np.eye(3)])])
+    scores = cmax_iwe.grid_contrast(
+        problem.bx, problem.by, problem.dt, problem.weights, candidates, problem.intrinsics,
+        4.0, WIDTH // 4, HEIGHT // 4, cmax_iwe.gaussian_taps(1.0),
+    )  # fmt: skip
+    assert scores.argmax() == 0
+
+
 def test_maximize_bfgs_finds_the_peak_of_a_skewed_quadratic() -> None:
     a = np.array([[3.0, 1.0, 0.0], [1.0, 2.0, 0.5], [0.0, 0.5, 1.0]])
     peak = np.array([2.0, -1.0, 4.0])

@@ -286,7 +286,7 @@ def _variance(
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def contrast_batch(
+def grid_contrast(
     bx: np.ndarray,
     by: np.ndarray,
     dt: np.ndarray,
@@ -298,10 +298,41 @@ def contrast_batch(
     height: int,
     taps: np.ndarray,
 ) -> np.ndarray:
-    """Contrast (no gradient) for each of ``omegas`` (M, 3) rad/s: the grid search's scores."""
+    """Contrast (no gradient) for each of ``omegas`` (M, 3) rad/s under the warp to first order
+    in the rotation angle, each event voting whole into its nearest pixel: the grid search's
+    scores, which only rank its starting points (BFGS refines them with :func:`warp`).
+
+    To first order, rotating ray ``(x, y, 1)`` by φ moves its image by
+    ``fx (-xy φx + (1 + x²) φy - y φz)`` and ``fy (-(1 + y²) φx + xy φy + x φz)`` pixels, so
+    each event costs six multiply-adds and one vote per ω; the second-order error is about
+    ``f |φ|² / 2``: 3 px at 40 px of motion with f = 245 px, under a pixel at the grid's
+    coarse level, whose blur is wider.
+    """
+    n = bx.shape[0]
+    inv = 1.0 / scale
+    fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
+    u0 = np.empty(n)
+    v0 = np.empty(n)
+    ju = np.empty((n, 3))
+    jv = np.empty((n, 3))
+    for i in range(n):
+        x, y = bx[i], by[i]
+        # +0.5 more than the pixel centre, so that floor() rounds to the nearest pixel
+        u0[i] = ((fx * x + cx) + 0.5) * inv
+        v0[i] = ((fy * y + cy) + 0.5) * inv
+        su, sv = -fx * inv * dt[i], -fy * inv * dt[i]  # φ = -ω dt
+        ju[i, 0], ju[i, 1], ju[i, 2] = -su * x * y, su * (1.0 + x * x), -su * y
+        jv[i, 0], jv[i, 1], jv[i, 2] = -sv * (1.0 + y * y), sv * x * y, sv * x
     out = np.empty(omegas.shape[0])
     for k in range(omegas.shape[0]):
-        out[k] = contrast(
-            bx, by, dt, weights, omegas[k], intrinsics, scale, width, height, taps, False
-        )[0]
+        w0, w1, w2 = omegas[k, 0], omegas[k, 1], omegas[k, 2]
+        image = np.zeros((height, width))
+        for i in range(n):
+            xi = math.floor(u0[i] + ju[i, 0] * w0 + ju[i, 1] * w1 + ju[i, 2] * w2)
+            yi = math.floor(v0[i] + jv[i, 0] * w0 + jv[i, 1] * w1 + jv[i, 2] * w2)
+            if 0 <= xi < width and 0 <= yi < height:
+                image[yi, xi] += weights[i]
+        blurred = _blur(image, taps)
+        centred = blurred - blurred.sum() / (width * height)
+        out[k] = (centred * centred).sum() / (width * height)
     return out

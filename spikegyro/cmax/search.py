@@ -42,7 +42,7 @@ def _grid_starts(problem: Problem, config: CMaxConfig) -> list[np.ndarray]:
     spacing_px = (axis[1] - axis[0]) * px / scale
     # Wide enough that a sharp peak between grid points still lifts its neighbours.
     sigma = max(config.sigma_px, 0.5 * spacing_px)
-    scores = iwe.contrast_batch(
+    scores = iwe.grid_contrast(
         problem.bx,
         problem.by,
         problem.dt,
