@@ -62,7 +62,7 @@ class WindowPolicy:
     """
 
     min_events: int = 3000
-    target_px: float = 5.0
+    target_px: float = 10.0
     min_ms: float = 2.0
     max_ms: float = 300.0
     fixed_ms: float = 0.0
