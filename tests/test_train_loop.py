@@ -244,6 +244,22 @@ def test_time_budget_stops_gracefully_with_a_checkpoint(dataset, tmp_path):
     assert (tmp_path / "last.pt").exists() and result.val
 
 
+def test_patience_stops_a_run_whose_validation_stopped_improving_and_survives_resume(
+    dataset, tmp_path
+):
+    # lr 0: the weights never change, so no validation after the first improves on it.
+    config = tiny_config(dataset, tmp_path, iterations=1000, lr=0.0, val_every=1, patience=2)
+    result = train(config, progress=False)
+    assert result.out_of_patience and result.stopped_early and not result.interrupted
+    assert (result.steps, result.best_step) == (3, 1)
+    # The best's step is kept with the run: a resumed run counts from it, not from its resume.
+    again = train(replace(config, patience=3), resume=True, progress=False)
+    assert (again.steps, again.best_step) == (4, 1) and again.out_of_patience
+    # Patience 0 (the default) never stops a run.
+    off = train(tiny_config(dataset, tmp_path / "off", lr=0.0, val_every=1), progress=False)
+    assert off.steps == 4 and not off.out_of_patience and not off.stopped_early
+
+
 # ----------------------------------------------------------------------------------- DDP
 
 

@@ -90,6 +90,7 @@ OPTION_HELP: dict[str, str] = {
     "grad_clip": "Max gradient norm (0 = off).",
     "iterations": "Optimizer steps.",
     "max_minutes": "Stop gracefully once the run has trained this long, resumed minutes included.",
+    "patience": "Stop once this many validations in a row have not improved on the best (0 = off).",
     "hflip": "Probability of a horizontal flip.",
     "vflip": "Probability of a vertical flip.",
     "time_reverse": "Probability of time inversion.",
@@ -241,6 +242,11 @@ def _report(config: TrainConfig, result: TrainResult) -> None:
     state = "done"
     if result.stopped_early:
         state = "interrupted" if result.interrupted else "stopped at the time budget"
+        if result.out_of_patience:
+            state = (
+                f"stopped: validation has not improved for {config.patience} validations "
+                f"(best at step {result.best_step})"
+            )
     console.print(
         f"[bold]train[/] {config.model} {state}: {result.steps} steps in "
         f"{result.elapsed_s / 60:.1f} min, last loss {result.last_loss:.3f} rad/s"

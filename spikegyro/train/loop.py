@@ -89,6 +89,8 @@ class TrainResult:
     interrupted: bool = False  # stopped by Ctrl-C (see spikegyro.train.interrupt)
     compute: str = "dense"  # how the training step ran: "sparse" (event engine) or "dense"
     val_start: dict[str, float] = field(default_factory=dict)  # real windows, before step 1
+    best_step: int = 0  # the step of best.pt
+    out_of_patience: bool = False  # stopped by --patience
 
 
 # ------------------------------------------------------------------------------ components
@@ -323,6 +325,7 @@ class _Run:
     elapsed0: float = 0.0  # seconds trained before this process started (resume)
     best: float = math.inf  # lowest validation median relative error so far
     best_on: str = ""  # windows_fingerprint of the validation windows ``best`` was measured on
+    best_step: int = 0  # the step ``best`` was measured at
     val_windows: list[Window] = field(default_factory=list)
     real: RealWindows | None = None  # unlabeled real windows (``config.real``)
     real_val: RealValidation | None = None  # the held-out real windows, scored
@@ -341,6 +344,7 @@ class _Progress:
     last_loss: float = math.nan
     val: dict[str, float] = field(default_factory=dict)
     stopped_early: bool = False
+    out_of_patience: bool = False  # the last validation's verdict under --patience
     batch: tuple[Any, Any] | None = None  # the last batch on the device, for the bare step
 
 
@@ -394,7 +398,7 @@ def _train(
     return TrainResult(run.files.dir, state.step, elapsed, state.last_loss, run.best, state.val,
                        state.stopped_early, clock.samples_per_s, bare, data_path,
                        interrupt.requested and state.stopped_early, run.compute,
-                       val_start)  # fmt: skip
+                       val_start, run.best_step, state.out_of_patience)  # fmt: skip
 
 
 def _build_run(config: TrainConfig, ctx: distributed.DistContext, resume: bool) -> _Run:
@@ -413,9 +417,8 @@ def _build_run(config: TrainConfig, ctx: distributed.DistContext, resume: bool) 
     run = _Run(config, ctx, RunFiles(Path(config.out)), spec, kwargs, model, optimizer, scheduler,
                compute, before, real=real)  # fmt: skip
     if resume:
-        run.start_step, run.best, run.elapsed0, run.best_on, run.before = load_resume(
-            run.files, model, optimizer, scheduler, ctx.device
-        )
+        resumed = load_resume(run.files, model, optimizer, scheduler, ctx.device)
+        run.start_step, run.best, run.elapsed0, run.best_on, run.before, run.best_step = resumed
         _use_configured_lr(optimizer, scheduler, config)
         check_time_budget(config.max_minutes, run.elapsed0)
     return run
@@ -473,7 +476,7 @@ def _prepare_validation(run: _Run) -> None:
             f"validation data differ from the resumed run's: best {run.best:.4f} forgotten",
             file=sys.stderr,
         )
-        run.best = math.inf
+        run.best, run.best_step = math.inf, run.start_step
     run.best_on = val_id
 
 
@@ -558,12 +561,20 @@ def _steps(
         if state.step % config.val_every == 0 or final:
             with clock.paused():
                 row.update(_validate_and_checkpoint(run, state))
+            state.out_of_patience = distributed.agree(_out_of_patience(run, state.step), ctx)
+            stop = stop or state.out_of_patience
         if row and ctx.is_main:
             _write_row(run.files, writer, {"step": state.step, **row})
         bar.update(state.step, state.last_loss, state.val)
         if stop:
             state.stopped_early = state.step < config.iterations
             break
+
+
+def _out_of_patience(run: _Run, step: int) -> bool:
+    """Whether ``patience`` validations in a row, up to ``step``, have not improved the best."""
+    patience = run.config.patience
+    return patience > 0 and step - run.best_step >= patience * run.config.val_every
 
 
 def _real_loss(run: _Run, subs: list[Any], state: _Progress) -> Any:
@@ -615,6 +626,8 @@ def _validate_and_checkpoint(run: _Run, state: _Progress) -> dict[str, str]:
         score = selection_score(state.val)
         better = score < run.best
         run.best = min(run.best, score)
+        if better:
+            run.best_step = state.step
         _checkpoint(run, state.step, time.monotonic() - state.t0, state.val, better)
     distributed.barrier(run.ctx)
     return columns
@@ -668,6 +681,7 @@ def _checkpoint(
         "step": step,
         "best": run.best,
         "best_on": run.best_on,
+        "best_step": run.best_step,
         "elapsed_s": elapsed_s,
         "optimizer": run.optimizer.state_dict(),
         "scheduler": run.scheduler.state_dict(),

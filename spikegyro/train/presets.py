@@ -63,6 +63,8 @@ class TrainConfig:
         warmup_steps: linear warm-up from 0; grad_clip: max gradient norm (0 = off).
         iterations: optimizer steps; max_minutes: stop gracefully after this much wall time
             (0 = no limit), validating and checkpointing first.
+        patience: stop once this many validations in a row have not improved on the best
+            (``best.pt``'s score), counted in steps of ``val_every`` (0 = off).
         hflip, vflip, time_reverse: probability of each augmentation.
         event_keep_min: event-drop augmentation: each training window keeps a share
             U(event_keep_min, 1) of its events (1 = off, the paper).
@@ -140,6 +142,7 @@ class TrainConfig:
     grad_clip: float = 0.0
     iterations: int = 240_000
     max_minutes: float = 0.0
+    patience: int = 0
     hflip: float = 0.5
     vflip: float = 0.5
     time_reverse: float = 0.5
@@ -314,7 +317,8 @@ class TrainConfig:
                 raise InputError(
                     f"--{name.replace('_', '-')} {getattr(self, name)}: must lie in 0..1."
                 )
-        for name in ("warmup_steps", "grad_clip", "val_windows", "num_workers", "threads"):
+        for name in ("warmup_steps", "grad_clip", "val_windows", "num_workers", "threads",
+                     "patience"):  # fmt: skip
             if getattr(self, name) < 0:
                 raise InputError(f"--{name.replace('_', '-')} {getattr(self, name)}: must be >= 0.")
         if self.max_minutes < 0:

@@ -213,8 +213,9 @@ def set_rng_states(states: dict[str, Any]) -> None:
 
 def load_resume(
     files: RunFiles, model: nn.Module, optimizer, scheduler, device: torch.device
-) -> tuple[int, float, float, str, dict[str, float]]:
-    """Restore a run from last.pt and resume.pt; (step, best, elapsed s, best_on, before)."""
+) -> tuple[int, float, float, str, dict[str, float], int]:
+    """Restore a run from last.pt and resume.pt; (step, best, elapsed s, best_on, before, the
+    step of the best: the resumed step for runs saved before it was kept)."""
     if not (files.last.exists() and files.resume.exists()):
         raise InputError(f"{files.dir}: nothing to resume (needs last.pt and {RESUME_FILE}).")
     payload = torch.load(files.last, map_location=device, weights_only=False)
@@ -225,7 +226,8 @@ def load_resume(
     set_rng_states(state["rng"])
     best_on = str(state.get("best_on", ""))  # runs saved before fingerprints: unknown data
     step, best, elapsed = int(state["step"]), float(state["best"]), float(state["elapsed_s"])
-    return step, best, elapsed, best_on, training_before(payload)
+    best_step = int(state.get("best_step", step))
+    return step, best, elapsed, best_on, training_before(payload), best_step
 
 
 def load_init(model: nn.Module, config: TrainConfig) -> dict[str, float]:
