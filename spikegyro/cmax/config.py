@@ -65,10 +65,9 @@ class CMaxConfig:
             recent best, or it is ill-posed, the next search comes after a fifth of
             ``search_every_s``; below half this share, at the next estimate (in line: the
             motion may have changed abruptly) while their budget allows.
-        collapse_gap_ms: that budget: two such searches may follow in a row, and one more is
-            allowed per this many ms of event time (0: no limit). On scenes of weak contrast
-            the gain falls that far every few estimates, and each search costs tens of
-            estimates' work.
+        collapse_gap_ms: that budget: at most one such search per this many ms of event time
+            (0: no limit). On scenes of weak contrast the gain falls that far every few
+            estimates, and each search costs tens of estimates' work.
         accelerating: each estimate is then refined once more under a rotation whose rate
             changes linearly (ω at the window's end and its rate of change α,
             :func:`~spikegyro.cmax.iwe.warp`), warm-started from the window's

@@ -66,7 +66,6 @@ from spikegyro.stream.estimator import (
 
 _NEVER = -(1 << 62)
 _SEARCH, _TEST = 0, 1  # the kinds of background job (each has its thread and RNG streams)
-_COLLAPSE_BURST = 2.0  # searches after a collapse of the gain that may follow in a row
 
 
 def _lowest_priority() -> None:
@@ -121,7 +120,7 @@ class CMaxEstimator:
         self._bend_hessian: np.ndarray | None = None
         self._doubt = 1.0
         self._best_gain = 0.0
-        self._credit = (float(_COLLAPSE_BURST), 0)  # collapse searches allowed, as of when (µs)
+        self._collapse_us: int | None = None  # the last search after a collapse of the gain
         self._last_t: int | None = None
         self._buffer = EventBuffer()
         self._thinning = Thinning(self.config.ingest_rate)
@@ -266,23 +265,15 @@ class CMaxEstimator:
     def _search_due(self, t_us: int) -> bool:
         """Whether the estimate at ``t_us`` runs the global search: the first, then every
         ``search_every_s``, sooner while tracking is in doubt, and after a collapse of the
-        contrast gain at once while the budget of such searches allows."""
+        contrast gain at once unless one ran within ``collapse_gap_ms``."""
         every = self.config.search_every_s * 1e6
         since = math.inf if self._last_search_us is None else t_us - self._last_search_us
         if self._omega is None:
             return True
         if self._doubt == 0.0:
-            return self._collapse_credit(t_us) >= 1.0
+            gap = t_us - self._collapse_us if self._collapse_us is not None else math.inf
+            return gap >= 1000 * self.config.collapse_gap_ms
         return self._search_job is None and every > 0 and since >= every * self._doubt
-
-    def _collapse_credit(self, t_us: int) -> float:
-        """Searches after a collapse that the budget allows at ``t_us``: one more per
-        ``collapse_gap_ms``, at most ``_COLLAPSE_BURST`` in a row."""
-        gap_us = 1000 * self.config.collapse_gap_ms
-        if gap_us <= 0:
-            return math.inf
-        credit, since_us = self._credit
-        return min(_COLLAPSE_BURST, credit + (t_us - since_us) / gap_us)
 
     def _window(self, t_us: int, searching: bool) -> tuple[np.ndarray, float, int] | None:
         """Buffer indices of the (thinned) events of the window ending at ``t_us``, its span
@@ -388,7 +379,7 @@ class CMaxEstimator:
         if self._omega is None or (searching and self._doubt == 0.0):
             # Nothing to track from, or tracking lost: this search is waited for.
             if self._omega is not None:
-                self._credit = (self._collapse_credit(t_us) - 1.0, t_us)
+                self._collapse_us = t_us
             found = search(problem, config, self._omega, grid=True, rng=self._rng)
             self._search_job = None
         else:
