@@ -29,19 +29,6 @@ from spikegyro.events.calib import PinholeCamera
 from spikegyro.events.io import read_recording
 
 
-def grid_of(problem: Problem, config: CMaxConfig) -> tuple[np.ndarray, tuple]:
-    """The grid (M, 3) rad/s of ``search._grid_starts`` and the scoring arguments after it."""
-    px = problem.px_per_rad_s
-    reach = min(math.radians(config.grid_max_dps), config.grid_max_px / px)
-    axis = np.linspace(-reach, reach, config.grid_points)
-    grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-    scale = problem.level(config.levels[0])
-    sigma = max(config.sigma_px, 0.5 * (axis[1] - axis[0]) * px / scale)
-    rest = (problem.intrinsics, float(scale), math.ceil(problem.width / scale),
-            math.ceil(problem.height / scale), iwe.gaussian_taps(sigma))  # fmt: skip
-    return grid, rest
-
-
 def exact_scores(p: Problem, grid: np.ndarray, rest: tuple) -> np.ndarray:
     """The grid scored with the exact warp and bilinear votes."""
     return np.array([iwe.contrast(p.bx, p.by, p.dt, p.weights, w, *rest, False)[0] for w in grid])
@@ -49,7 +36,7 @@ def exact_scores(p: Problem, grid: np.ndarray, rest: tuple) -> np.ndarray:
 
 def exact_grid_starts(problem: Problem, config: CMaxConfig) -> list[np.ndarray]:
     """``search._grid_starts`` with the exact scoring."""
-    grid, rest = grid_of(problem, config)
+    grid, rest = search.grid_of(problem, config)
     return list(grid[np.argsort(-exact_scores(problem, grid, rest))[: config.starts]])
 
 
@@ -78,7 +65,7 @@ def main() -> None:
             continue
         problem = make_problem(window, camera, config, rng, None)
         sub = problem.subset(config.search_events, rng).subset(config.grid_events, rng)
-        grid, rest = grid_of(sub, config)
+        grid, rest = search.grid_of(sub, config)
         exact, t_exact = cpu(exact_scores, sub, grid, rest)
         first, t_first = cpu(iwe.grid_contrast, sub.bx, sub.by, sub.dt, sub.weights, grid, *rest)
         found, t_search = cpu(search.search, problem, config, None, True, np.random.default_rng(1))

@@ -83,6 +83,7 @@ def main() -> None:
         lines, arrived, err = run_live(args.events, args.core, options, log)
         sent = np.load(log)
         want = file_csv.read_text().splitlines(keepends=True)
+        ours = read_predictions(file_csv)
     ev = read_recording(args.events).events
     rows = np.array([float(line.split(",")[0]) for line in lines[1:]])
     t_us = np.rint(rows * 1e6).astype(np.int64)
@@ -105,24 +106,19 @@ def main() -> None:
     )
     print("\n".join(line for line in err.splitlines() if "behind" in line or "estimates (" in line))
     if args.reference:
-        print(difference(file_rows(want), args.reference, ev.t[0]))
+        print(difference(ours, args.reference, ev.t[0]))
     if args.figure:
         plot_latency(args.figure, (t_us - ev.t[0]) / 1e6, latency_ms, args.events.name)
 
 
-def file_rows(lines: list[str]) -> np.ndarray:
-    """(n, 4) t (s), ω (rad/s) of a CSV prediction file's lines."""
-    return np.array([[float(v) for v in line.split(",")[:4]] for line in lines[1:]])
-
-
-def difference(rows: np.ndarray, reference: Path, t0_us: int) -> str:
-    """The mean Euclidean difference (deg/s) of ``rows`` from ``reference`` from 0.5 s on."""
+def difference(ours: dict[str, np.ndarray], reference: Path, t0_us: int) -> str:
+    """The mean Euclidean difference (deg/s) of prediction arrays ``ours`` (``read_predictions``)
+    from the file ``reference``, from 0.5 s into the stream on."""
     ref = read_predictions(reference)
-    t_s = rows[:, 0]
-    keep = t_s >= t0_us / 1e6 + 0.5
-    ref_s = ref["t_us"] / 1e6
-    truth = np.stack([np.interp(t_s[keep], ref_s, ref["omega"][:, k]) for k in range(3)], 1)
-    gap = np.degrees(np.linalg.norm(rows[keep, 1:] - truth, axis=1))
+    keep = ours["t_us"] >= t0_us + 500_000
+    t_us = ours["t_us"][keep]
+    truth = np.stack([np.interp(t_us, ref["t_us"], ref["omega"][:, k]) for k in range(3)], 1)
+    gap = np.degrees(np.linalg.norm(ours["omega"][keep] - truth, axis=1))
     return (
         f"mean Euclidean difference from {reference.name}: {gap.mean():.2f} deg/s "
         f"({keep.sum()} estimates)"

@@ -30,30 +30,28 @@ from spikegyro.cmax.problem import Intrinsics, Problem, default_camera, make_pro
 from spikegyro.events.core import EventArray
 
 
-def _grid_starts(problem: Problem, config: CMaxConfig) -> list[np.ndarray]:
-    """The ``config.starts`` best grid points, scored at the coarsest level blurred to spacing."""
-    if config.starts <= 0 or config.grid_points < 2:
-        return []
+def grid_of(problem: Problem, config: CMaxConfig) -> tuple[np.ndarray, tuple]:
+    """The global search's grid (M, 3) rad/s and the arguments after the ω of the objective
+    that scores it: the intrinsics, the coarsest level, its image size and a blur as wide as
+    the grid's spacing."""
     px = problem.px_per_rad_s
     reach = min(math.radians(config.grid_max_dps), config.grid_max_px / px)
     axis = np.linspace(-reach, reach, config.grid_points)
     grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
     scale = problem.level(config.levels[0])
-    spacing_px = (axis[1] - axis[0]) * px / scale
     # Wide enough that a sharp peak between grid points still lifts its neighbours.
-    sigma = max(config.sigma_px, 0.5 * spacing_px)
-    scores = iwe.grid_contrast(
-        problem.bx,
-        problem.by,
-        problem.dt,
-        problem.weights,
-        grid,
-        problem.intrinsics,
-        float(scale),
-        math.ceil(problem.width / scale),
-        math.ceil(problem.height / scale),
-        iwe.gaussian_taps(sigma),
-    )
+    sigma = max(config.sigma_px, 0.5 * (axis[1] - axis[0]) * px / scale)
+    size = (math.ceil(problem.width / scale), math.ceil(problem.height / scale))
+    return grid, (problem.intrinsics, float(scale), *size, iwe.gaussian_taps(sigma))
+
+
+def _grid_starts(problem: Problem, config: CMaxConfig) -> list[np.ndarray]:
+    """The ``config.starts`` best grid points, scored at the coarsest level blurred to spacing."""
+    if config.starts <= 0 or config.grid_points < 2:
+        return []
+    grid, rest = grid_of(problem, config)
+    p = problem
+    scores = iwe.grid_contrast(p.bx, p.by, p.dt, p.weights, grid, *rest)
     return list(grid[np.argsort(-scores)[: config.starts]])
 
 
