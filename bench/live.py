@@ -70,6 +70,10 @@ def main() -> None:
     parser.add_argument("--reference", type=Path, help="Prediction file to compare with.")
     args = parser.parse_args()
     options = ["--intrinsics", *args.intrinsics]
+    # This script and the replay server (a child, which inherits it) keep off predict's core.
+    others = os.sched_getaffinity(0) - {args.core}
+    if others:
+        os.sched_setaffinity(0, others)
     with tempfile.TemporaryDirectory() as tmp:
         file_csv, log = Path(tmp) / "file.csv", Path(tmp) / "sent.npy"
         started, cpu = time.time(), os.times()

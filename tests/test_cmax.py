@@ -175,6 +175,55 @@ def test_blur_matches_scipy_gaussian_filter() -> None:
     np.testing.assert_allclose(got, expected, atol=1e-12)
 
 
+def test_contrast_matches_a_numpy_reference_whatever_its_scratch_held_and_on_any_thread() -> None:
+    # The objective's arrays are per-thread scratch reused from call to call: values must not
+    # depend on what an earlier call (another size, another level) left there, nor on threads.
+    import threading
+
+    taps = cmax_iwe.gaussian_taps(1.0)
+    rng = np.random.default_rng(8)
+    cases = []
+    for n, scale, gradient in ((3000, 1, True), (400, 2, False), (5000, 4, True), (50, 1, False)):
+        bx, by = rng.uniform(-0.6, 0.6, n), rng.uniform(-0.45, 0.45, n)
+        dt, weights = rng.uniform(0, 0.04, n), rng.uniform(0.5, 1.5, n)
+        omega = rng.normal(0, 2.0, 3)
+        cases.append((bx, by, dt, weights, omega, INTRINSICS, float(scale), WIDTH // scale,
+                      HEIGHT // scale, taps, gradient))  # fmt: skip
+
+    def reference(case) -> float:
+        bx, by, dt, weights, omega, intrinsics, scale, w, h, _, _ = case
+        u, v, valid, _, _ = cmax_iwe.warp(bx, by, dt, omega, intrinsics, scale, False)
+        x0, y0 = np.floor(u).astype(int), np.floor(v).astype(int)
+        fu, fv = u - x0, v - y0
+        image = np.zeros((h + 2, w + 2))  # a border catches the votes that fall outside
+        for dx, dy, share in ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)),
+                              (0, 1, (1 - fu) * fv), (1, 1, fu * fv)):  # fmt: skip
+            xi, yi = np.clip(x0 + dx, -1, w) + 1, np.clip(y0 + dy, -1, h) + 1
+            np.add.at(image, (yi[valid], xi[valid]), (weights * share)[valid])
+        inner = gaussian_filter(image[1:-1, 1:-1], 1.0, mode="constant", truncate=3.0)
+        return float(inner.var())
+
+    expected = [cmax_iwe.contrast(*case) for case in cases]
+    for case, (value, _) in zip(cases, expected, strict=True):
+        assert value == pytest.approx(reference(case), rel=1e-9)
+    runs = [[cmax_iwe.contrast(*case) for case in reversed(cases)][::-1]]
+
+    def on_a_thread() -> None:
+        values = [cmax_iwe.contrast(*case) for case in cases * 20]
+        runs.extend(values[k : k + len(cases)] for k in range(0, len(values), len(cases)))
+
+    threads = [threading.Thread(target=on_a_thread) for _ in range(3)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert len(runs) == 1 + 3 * 20
+    for got in runs:
+        for (value, gradient), (want, want_gradient) in zip(got, expected, strict=True):
+            assert value == want
+            np.testing.assert_array_equal(gradient, want_gradient)
+
+
 def test_grid_contrast_votes_to_the_nearest_pixel_and_moves_rays_to_first_order() -> None:
     rng = np.random.default_rng(4)
     n = 300

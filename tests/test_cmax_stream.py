@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -165,6 +166,23 @@ def test_background_searches_and_tests_do_not_depend_on_their_timing(monkeypatch
     np.testing.assert_array_equal(got.ill_posed, expected.ill_posed)
     at = {int(t): w for t, w in zip(got.t_us, got.omega, strict=True)}
     assert_close_omega(at[190_000], second)
+
+
+def test_a_fast_start_is_found_once_the_first_global_search_is_taken_up() -> None:
+    # 600 deg/s of tilt: beyond the reach of ω = 0 refined coarse to fine, which the stream
+    # starts from while its first global search runs beside the estimates.
+    omega = np.radians([600.0, 0.0, 0.0])
+    events = point_track_events(omega, seed=5, duration_s=0.15, points=4000)
+    config = CMaxConfig(search_lag_ms=50.0)
+    est = CMaxEstimator(CAMERA, config, t0_us=0).run(events, batch_us=5000)
+    first = int(est.t_us[0])
+    assert np.degrees(np.linalg.norm(est.omega[0] - omega)) > 100.0
+    for t, w in zip(est.t_us, est.omega, strict=True):
+        if first + 50_000 <= t <= 110_000:
+            assert_close_omega(w, omega)
+    # In line (as `spikegyro evaluate` runs it on its 100 ms windows) it is right at once.
+    in_line = CMaxEstimator(CAMERA, replace(config, search_in_line=True), t0_us=0)
+    assert_close_omega(in_line.run(events, batch_us=5000).omega[0], omega)
 
 
 def test_searches_after_a_collapse_of_the_gain_keep_to_their_budget() -> None:

@@ -59,6 +59,13 @@ class CMaxConfig:
             is refined on, and competes at, the first estimate this many ms of event time after
             the search's own (the engine waits for it there: long enough that on one core the
             search fits in the time the estimates leave).
+        search_in_line: the searches that cannot wait (the stream's first, and those after a
+            collapse of the contrast gain, below) run the global search in line. Otherwise
+            (default) they refine ω = 0 and the tracked ω coarse to fine in line and run the
+            global search on that thread, taken up ``search_lag_ms`` later: its grid and
+            starts would hold up every estimate behind it by about 0.1 s of CPU time.
+        urgent_iterations: BFGS iterations per pyramid level of that in-line part (the
+            estimates after it go on refining).
         min_motion_px: estimates moving edges by less than this over their window are flagged
             ill-posed (too little motion to tell from none).
         gain_drop: when an estimate's contrast gain above 1 falls below this share of its
@@ -88,6 +95,9 @@ class CMaxConfig:
         levels: image downscale factors of the pyramid, coarse to fine (the last is 1).
         sigma_px: Gaussian smoothing of the IWE, pixels of each pyramid level.
         iterations: BFGS iterations per pyramid level of the search.
+        coarse_xtol_px: the search's refinement at a coarse level stops once a step moves
+            edges less than this (that level's pixels): it only has to start the next level
+            within reach of its maximum.
         grid_points: grid points per axis of the global search (odd, so 0 is on the grid).
         grid_max_dps: the grid spans at most ``±grid_max_dps`` deg/s on each axis ...
         grid_max_px: ... and at most ``±grid_max_px`` pixels of displacement at the window's ends.
@@ -113,6 +123,8 @@ class CMaxConfig:
     track_xtol_px: float = 0.05
     search_every_s: float = 3.0
     search_lag_ms: float = 1000.0
+    search_in_line: bool = False
+    urgent_iterations: int = 5
     min_motion_px: float = 1.0
     gain_drop: float = 0.6
     collapse_gap_ms: float = 250.0
@@ -126,6 +138,7 @@ class CMaxConfig:
     levels: tuple[int, ...] = (4, 2, 1)
     sigma_px: float = 1.0
     iterations: int = 20
+    coarse_xtol_px: float = 0.1
     grid_points: int = 11
     grid_max_dps: float = 1000.0
     grid_max_px: float = 40.0

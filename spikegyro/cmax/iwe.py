@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 
 import numba
 import numpy as np
@@ -58,35 +59,44 @@ def _rotation_coefficients(theta2: float) -> tuple[float, float, float]:
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _blur(image: np.ndarray, taps: np.ndarray) -> np.ndarray:
-    """Separable blur with zero padding of a (H, W) image.
+    """Separable Gaussian blur with zero padding of a (H, W) image (:func:`_blur_into`)."""
+    height, width = image.shape
+    out = np.empty((height, width))
+    _blur_into(image, taps, out, np.empty(width + taps.shape[0] - 1))
+    return out
 
-    The y pass runs first, each tap adding a whole source row into a row padded by the
-    radius on both sides; the x pass then adds each tap's shifted padded row to the output
-    row. Every innermost loop runs along x over contiguous memory with no bounds test, so
-    both vectorize, where an x pass that sums the taps per pixel in a register does not; on a
-    240x180 image the blur is most of the objective's cost.
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _blur_into(image: np.ndarray, taps: np.ndarray, out: np.ndarray, row: np.ndarray) -> None:
+    """Blur (H, W) ``image`` into ``out`` (another array) with zero padding; ``row``: scratch of
+    W + len(taps) - 1 values.
+
+    Row by row, the y pass adds each tap's source row into ``row``, padded by the radius on
+    both sides, and the x pass adds each tap's shift of ``row`` into the output row. Every
+    innermost loop runs along x over contiguous memory with no bounds test, so both
+    vectorize, where an x pass that sums the taps per pixel in a register does not; on a
+    240x180 image the blur is much of the objective's cost.
     """
     height, width = image.shape
     radius = (taps.shape[0] - 1) // 2
-    if radius == 0:
-        return image * taps[0]
-    padded = np.zeros((height, width + 2 * radius))
     for y in range(height):
-        target = padded[y, radius : radius + width]
+        target = out[y]
+        if radius == 0:
+            for x in range(width):
+                target[x] = taps[0] * image[y, x]
+            continue
+        row[:] = 0.0
+        line = row[radius : radius + width]
         for k in range(max(-radius, -y), min(radius, height - 1 - y) + 1):
             w = taps[k + radius]
             source = image[y + k]
             for x in range(width):
-                target[x] += w * source[x]
-    out = np.zeros((height, width))
-    for y in range(height):
-        row = padded[y]
-        target = out[y]
+                line[x] += w * source[x]
+        target[:] = 0.0
         for k in range(2 * radius + 1):
             w = taps[k]
             for x in range(width):
                 target[x] += w * row[x + k]
-    return out
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -161,16 +171,33 @@ def warp(
         (N,), and, with ``with_gradient``, d u/d params and d v/d params (N, 3 or 6) in px per
         unit (``dφ/dω = -dt``, ``dφ/dα = dt²/2``).
     """
-    n = bx.shape[0]
+    n, k = bx.shape[0], params.shape[0]
+    m = n if with_gradient else 0
+    u, v, valid = np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)
+    du, dv = np.empty((m, k)), np.empty((m, k))
+    _warp_into(bx, by, dt, params, intrinsics, scale, u, v, valid, du, dv)
+    return u, v, valid, du, dv
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _warp_into(
+    bx: np.ndarray,
+    by: np.ndarray,
+    dt: np.ndarray,
+    params: np.ndarray,
+    intrinsics: np.ndarray,
+    scale: float,
+    u: np.ndarray,
+    v: np.ndarray,
+    valid: np.ndarray,
+    du: np.ndarray,
+    dv: np.ndarray,
+) -> None:
+    """:func:`warp` into given arrays; the gradient where ``du`` and ``dv`` have rows."""
     k = params.shape[0]
     inv = 1.0 / scale
-    u = np.empty(n)
-    v = np.empty(n)
-    valid = np.empty(n, dtype=np.bool_)
-    m = n if with_gradient else 0
-    du = np.zeros((m, k))
-    dv = np.zeros((m, k))
-    for i in range(n):
+    with_gradient = du.shape[0] > 0
+    for i in range(bx.shape[0]):
         d = dt[i]
         h = 0.5 * d * d if k == 6 else 0.0
         a0, a1, a2 = (params[3], params[4], params[5]) if k == 6 else (0.0, 0.0, 0.0)
@@ -184,7 +211,6 @@ def warp(
             if k == 6:
                 du[i, 3], du[i, 4], du[i, 5] = -h * u0, -h * u1, -h * u2
                 dv[i, 3], dv[i, 4], dv[i, 5] = -h * v0, -h * v1, -h * v2
-    return u, v, valid, du, dv
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -195,7 +221,18 @@ def accumulate(
 
     Votes falling outside the image are dropped.
     """
-    image = np.zeros((height, width))
+    image = np.empty((height, width))
+    _vote_into(u, v, weights, valid, image)
+    return image
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _vote_into(
+    u: np.ndarray, v: np.ndarray, weights: np.ndarray, valid: np.ndarray, image: np.ndarray
+) -> None:
+    """:func:`accumulate` into ``image`` (H, W), which it clears first."""
+    height, width = image.shape
+    image[:] = 0.0
     for i in range(u.shape[0]):
         if not valid[i]:
             continue
@@ -214,10 +251,8 @@ def accumulate(
                 image[y0 + 1, x0] += w * (1.0 - fu) * fv
             if 0 <= x0 + 1 < width:
                 image[y0 + 1, x0 + 1] += w * fu * fv
-    return image
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
 def contrast(
     bx: np.ndarray,
     by: np.ndarray,
@@ -235,37 +270,73 @@ def contrast(
     (ω, or ω_ref and α) and its gradient wrt them.
 
     ``width``, ``height`` are the IWE's size at that resolution; ``taps`` the Gaussian's.
+    The arrays of the computation are this thread's scratch (:func:`_scratch`), reused from
+    call to call.
     """
-    u, v, valid, du, dv = warp(bx, by, dt, params, intrinsics, scale, with_gradient)
-    return _variance(u, v, valid, du, dv, weights, width, height, taps, with_gradient)
+    n, k = bx.shape[0], params.shape[0]
+    m = n if with_gradient else 0
+    pixels = width * height
+    floats, flags = _scratch(2 * n + 2 * m * k + 2 * pixels + width + taps.shape[0] - 1, n)
+    return _contrast_into(
+        bx, by, dt, weights, params, intrinsics, scale, width, height, taps, m, floats, flags
+    )
+
+
+_local = threading.local()
+
+
+def _scratch(floats: int, flags: int) -> tuple[np.ndarray, np.ndarray]:
+    """This thread's scratch arrays: at least ``floats`` float64 and ``flags`` booleans.
+
+    Kept and reused because fresh arrays of the objective's size are mapped by the C
+    allocator and faulted in page by page at every call: that doubled the objective's cost
+    at 240x180. Per thread, since the live engine's searches and tests run on threads of
+    their own.
+    """
+    have = getattr(_local, "arrays", None)
+    if have is None or len(have[0]) < floats or len(have[1]) < flags:
+        size = max(floats, len(have[0]) if have else 0)
+        have = _local.arrays = (np.empty(size), np.empty(max(flags, 1), dtype=np.bool_))
+    return have
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _variance(
-    u: np.ndarray,
-    v: np.ndarray,
-    valid: np.ndarray,
-    du: np.ndarray,
-    dv: np.ndarray,
+def _contrast_into(
+    bx: np.ndarray,
+    by: np.ndarray,
+    dt: np.ndarray,
     weights: np.ndarray,
+    params: np.ndarray,
+    intrinsics: np.ndarray,
+    scale: float,
     width: int,
     height: int,
     taps: np.ndarray,
-    with_gradient: bool,
+    m: int,
+    floats: np.ndarray,
+    flags: np.ndarray,
 ) -> tuple[float, np.ndarray]:
-    """Variance of the blurred IWE of warped points (u, v) and its gradient wrt the warp's
-    parameters, from the points' derivatives ``du``, ``dv`` (N, K)."""
-    blurred = _blur(accumulate(u, v, weights, valid, width, height), taps)
-    pixels = width * height
-    mean = blurred.sum() / pixels
-    centred = blurred - mean
-    variance = (centred * centred).sum() / pixels
-    k = du.shape[1]
+    """:func:`contrast` on scratch arrays ``floats`` and ``flags``; ``m``: N with the gradient,
+    else 0."""
+    n, k, pixels = bx.shape[0], params.shape[0], width * height
+    u, v = floats[:n], floats[n : 2 * n]
+    du = floats[2 * n : 2 * n + m * k].reshape((m, k))
+    dv = floats[2 * n + m * k : 2 * n + 2 * m * k].reshape((m, k))
+    rest = 2 * n + 2 * m * k
+    image = floats[rest : rest + pixels].reshape((height, width))
+    blurred = floats[rest + pixels : rest + 2 * pixels].reshape((height, width))
+    row = floats[rest + 2 * pixels : rest + 2 * pixels + width + taps.shape[0] - 1]
+    valid = flags[:n]
+    _warp_into(bx, by, dt, params, intrinsics, scale, u, v, valid, du, dv)
+    _vote_into(u, v, weights, valid, image)
+    _blur_into(image, taps, blurred, row)
+    variance = _centre(blurred)
     gradient = np.zeros(k)
-    if not with_gradient:
+    if m == 0:
         return variance, gradient
-    q = _blur(centred, taps)
-    for i in range(u.shape[0]):
+    q = image  # the votes are no longer needed
+    _blur_into(blurred, taps, q, row)
+    for i in range(n):
         if not valid[i]:
             continue
         fu0 = math.floor(u[i])
@@ -283,6 +354,24 @@ def _variance(
         for j in range(k):
             gradient[j] += w * (gu * du[i, j] + gv * dv[i, j])
     return variance, gradient * (2.0 / pixels)
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _centre(image: np.ndarray) -> float:
+    """Subtract the mean of (H, W) ``image`` from it in place; returns its variance."""
+    height, width = image.shape
+    total = 0.0
+    for y in range(height):
+        for x in range(width):
+            total += image[y, x]
+    mean = total / (height * width)
+    square = 0.0
+    for y in range(height):
+        for x in range(width):
+            c = image[y, x] - mean
+            image[y, x] = c
+            square += c * c
+    return square / (height * width)
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -324,15 +413,16 @@ def grid_contrast(
         ju[i, 0], ju[i, 1], ju[i, 2] = -su * x * y, su * (1.0 + x * x), -su * y
         jv[i, 0], jv[i, 1], jv[i, 2] = -sv * (1.0 + y * y), sv * x * y, sv * x
     out = np.empty(omegas.shape[0])
+    image, blurred = np.empty((height, width)), np.empty((height, width))
+    row = np.empty(width + taps.shape[0] - 1)
     for k in range(omegas.shape[0]):
         w0, w1, w2 = omegas[k, 0], omegas[k, 1], omegas[k, 2]
-        image = np.zeros((height, width))
+        image[:] = 0.0
         for i in range(n):
             xi = math.floor(u0[i] + ju[i, 0] * w0 + ju[i, 1] * w1 + ju[i, 2] * w2)
             yi = math.floor(v0[i] + jv[i, 0] * w0 + jv[i, 1] * w1 + jv[i, 2] * w2)
             if 0 <= xi < width and 0 <= yi < height:
                 image[yi, xi] += weights[i]
-        blurred = _blur(image, taps)
-        centred = blurred - blurred.sum() / (width * height)
-        out[k] = (centred * centred).sum() / (width * height)
+        _blur_into(image, taps, blurred, row)
+        out[k] = _centre(blurred)
     return out

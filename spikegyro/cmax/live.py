@@ -8,14 +8,14 @@ from the events in ``(t - W, t]`` only. Per estimate:
    and enough image motion under the previous estimate, within bounds;
 2. its events (hot pixels dropped, evenly thinned to ``track_events``) as rays, warped to ``t``;
 3. a few BFGS steps at full resolution from the previous estimate with the exact-gradient
-   Numba objective (:mod:`spikegyro.cmax.iwe`); the global search
-   (:func:`spikegyro.cmax.search.search`) instead at the first estimate and when the
-   contrast gain collapses (the motion changed abruptly);
+   Numba objective (:mod:`spikegyro.cmax.iwe`); instead, at the first estimate and when the
+   contrast gain collapses (the motion changed abruptly), ω = 0 and the previous estimate
+   refined coarse to fine, and a global search (:func:`spikegyro.cmax.search.search`);
 4. its confidence: events used, window, the contrast over that of ω = 0, and flags when
    ill-posed (too few events, too little motion, not one rotation).
 
-The other global searches (every ``search_every_s``, sooner when tracking is in doubt) and the
-one-rotation test cost tens of estimates' work each. Run in line they would hold up the
+The global searches (those, and one every ``search_every_s``, sooner when tracking is in doubt)
+and the one-rotation test cost tens of estimates' work each. Run in line they would hold up the
 estimates behind them by hundreds of milliseconds, so they run on threads of their own (the
 Numba code releases the GIL) on a copy of their window, and their results are taken up at a
 fixed later point of event time: a search's at the first estimate ``search_lag_ms`` after it
@@ -39,6 +39,7 @@ import os
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -377,16 +378,13 @@ class CMaxEstimator:
         if searching:
             self._last_search_us, self.searches = t_us, self.searches + 1
         if self._omega is None or (searching and self._doubt == 0.0):
-            # Nothing to track from, or tracking lost: this search is waited for.
+            # Nothing to track from, or tracking lost: a search that is waited for.
             if self._omega is not None:
                 self._collapse_us = t_us
-            found = search(problem, config, self._omega, grid=True, rng=self._rng)
-            self._search_job = None
+            found = self._urgent_search(problem, t_us)
         else:
             if searching:
-                rng = self._job_rng(_SEARCH, t_us)
-                job = self._submit(_SEARCH, search, problem, config, self._omega, True, rng)
-                self._search_job = (job, t_us + round(1000 * config.search_lag_ms))
+                self._submit_search(problem, self._omega, t_us)
             found = self._track(problem, self._omega, self._hessian)
             found = self._take_search(problem, found, t_us)
         omega = self._omega = found.omega
@@ -408,6 +406,28 @@ class CMaxEstimator:
         return refine(
             problem, omega, 1, config, config.track_iterations, inv_hessian, config.track_xtol_px
         )
+
+    def _urgent_search(self, problem: Problem, t_us: int) -> Refined:
+        """The search of an estimate that cannot wait (see ``CMaxConfig.search_in_line``)."""
+        config, omega = self.config, self._omega
+        if config.search_in_line:
+            self._search_job = None
+            return search(problem, config, omega, grid=True, rng=self._rng)
+        # No grid points: ω = 0 and the tracked ω, coarse to fine.
+        local = replace(config, starts=0, iterations=config.urgent_iterations)
+        found = search(problem, local, omega, grid=True, rng=self._rng)
+        self._submit_search(problem, found.omega, t_us)
+        return found
+
+    def _submit_search(self, problem: Problem, omega: np.ndarray, t_us: int) -> None:
+        """The global search of ``problem`` (warm start ``omega``, rad/s) on the searches'
+        thread, its result due at the first estimate ``search_lag_ms`` after ``t_us``; it
+        replaces a pending one, which is dropped if it has not started."""
+        if self._search_job is not None:
+            self._search_job[0].cancel()
+        rng = self._job_rng(_SEARCH, t_us)
+        job = self._submit(_SEARCH, search, problem, self.config, omega, True, rng)
+        self._search_job = (job, t_us + round(1000 * self.config.search_lag_ms))
 
     def _take_search(self, problem: Problem, tracked: Refined, t_us: int) -> Refined:
         """``tracked``, or the pending search's ω refined on ``problem`` where its lag is up

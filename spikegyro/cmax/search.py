@@ -216,7 +216,7 @@ def search(
     best, best_score = starts[0], -math.inf
     for omega in starts:
         for scale in levels[:-1]:
-            omega = refine(sub, omega, scale, config).omega
+            omega = refine(sub, omega, scale, config, xtol_px=config.coarse_xtol_px).omega
         if len(starts) == 1:
             best = omega
             break

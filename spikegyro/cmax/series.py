@@ -70,8 +70,11 @@ def hold_per_ms(t_us: np.ndarray, omega: np.ndarray, t_start_us: int, num_steps:
     return held
 
 
-SIMULATED_CONFIG = CMaxConfig(rate_hz=200.0, window=WindowPolicy(fixed_ms=30.0))
-"""Causal 30 ms windows every 5 ms: the networks' setting in ``spikegyro evaluate``."""
+SIMULATED_CONFIG = CMaxConfig(
+    rate_hz=200.0, window=WindowPolicy(fixed_ms=30.0), search_in_line=True
+)
+"""Causal 30 ms windows every 5 ms: the networks' setting in ``spikegyro evaluate``. Searches
+run in line: a window of 100 ms ends before a search beside the estimates would be taken up."""
 
 
 def predict_windows(
