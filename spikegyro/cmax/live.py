@@ -416,15 +416,13 @@ class CMaxEstimator:
         # No grid points: ω = 0 and the tracked ω, coarse to fine.
         local = replace(config, starts=0, iterations=config.urgent_iterations)
         found = search(problem, local, omega, grid=True, rng=self._rng)
-        self._submit_search(problem, found.omega, t_us)
+        if self._search_job is None:  # a pending one is kept: where the gain keeps
+            self._submit_search(problem, found.omega, t_us)  # collapsing, each would be wasted
         return found
 
     def _submit_search(self, problem: Problem, omega: np.ndarray, t_us: int) -> None:
         """The global search of ``problem`` (warm start ``omega``, rad/s) on the searches'
-        thread, its result due at the first estimate ``search_lag_ms`` after ``t_us``; it
-        replaces a pending one, which is dropped if it has not started."""
-        if self._search_job is not None:
-            self._search_job[0].cancel()
+        thread, its result due at the first estimate ``search_lag_ms`` after ``t_us``."""
         rng = self._job_rng(_SEARCH, t_us)
         job = self._submit(_SEARCH, search, problem, self.config, omega, True, rng)
         self._search_job = (job, t_us + round(1000 * self.config.search_lag_ms))
