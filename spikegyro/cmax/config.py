@@ -36,8 +36,8 @@ class OneRotationTest:
     min_gain: float = 1.05
     min_half_gain: float = 1.015
     min_events: int = 500
-    iterations: int = 2
-    max_events: int = 2500
+    iterations: int = 1
+    max_events: int = 1500
     scale: int = 2
     every_ms: float = 50.0
 
