@@ -47,10 +47,15 @@ def settings(pairs: list[str], cls: type) -> dict[str, Any]:
     """``FIELD=VALUE`` pairs as keyword arguments of dataclass ``cls`` (values typed as its
     defaults)."""
     types = {f.name: type(f.default) for f in fields(cls)}
-    out = {}
+    out: dict[str, Any] = {}
     for pair in pairs:
-        name, value = pair.split("=", 1)
-        out[name] = types[name](value)
+        name, _, value = pair.partition("=")
+        if name not in types or not value:
+            raise ValueError(f"{pair!r}: expected FIELD=VALUE with a field of {cls.__name__}")
+        if types[name] is bool:  # bool("False") is True
+            out[name] = value.lower() in ("1", "true", "yes")
+        else:
+            out[name] = types[name](value)
     return out
 
 
@@ -75,6 +80,8 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], help="CMaxConfig FIELD=VALUE")
     parser.add_argument("--test-set", action="append", default=[], help="OneRotationTest F=V")
     args = parser.parse_args()
+    if not args.events.exists():
+        parser.error(f"{args.events}: no such file")
     os.sched_setaffinity(0, {args.core})
     events = read_recording(args.events).events
     camera = None
@@ -85,8 +92,12 @@ def main() -> None:
         setattr(live, name, timed(getattr(live, name), kind, spent))
     configs = {"defaults": CMaxConfig()}
     if args.set or args.test_set:
-        test = OneRotationTest(**settings(args.test_set, OneRotationTest))
-        configs["set"] = replace(CMaxConfig(**settings(args.set, CMaxConfig)), one_rotation=test)
+        try:
+            test = OneRotationTest(**settings(args.test_set, OneRotationTest))
+            config = CMaxConfig(**settings(args.set, CMaxConfig))
+        except ValueError as error:
+            parser.error(str(error))
+        configs["set"] = replace(config, one_rotation=test)
     live.CMaxEstimator(camera).run(events.slice_time(int(events.t[0]), int(events.t[0]) + 200_000))
     rows: dict[str, list[dict]] = {name: [] for name in configs}
     for k in range(args.rounds):

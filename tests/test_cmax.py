@@ -170,7 +170,9 @@ def test_bilinear_votes_split_by_distance_and_drop_outside() -> None:
 def test_blur_matches_scipy_gaussian_filter() -> None:
     rng = np.random.default_rng(2)
     image = rng.random((30, 40))
-    got = cmax_iwe._blur(image, cmax_iwe.gaussian_taps(1.5))
+    taps = cmax_iwe.gaussian_taps(1.5)
+    got = np.full_like(image, np.nan)  # every pixel must be written
+    cmax_iwe._blur_into(image, taps, got, np.full(image.shape[1] + len(taps) - 1, np.nan))
     expected = gaussian_filter(image, 1.5, mode="constant", truncate=3.0)
     np.testing.assert_allclose(got, expected, atol=1e-12)
 

@@ -58,15 +58,6 @@ def _rotation_coefficients(theta2: float) -> tuple[float, float, float]:
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _blur(image: np.ndarray, taps: np.ndarray) -> np.ndarray:
-    """Separable Gaussian blur with zero padding of a (H, W) image (:func:`_blur_into`)."""
-    height, width = image.shape
-    out = np.empty((height, width))
-    _blur_into(image, taps, out, np.empty(width + taps.shape[0] - 1))
-    return out
-
-
-@numba.njit(cache=True, nogil=True, fastmath=True)
 def _blur_into(image: np.ndarray, taps: np.ndarray, out: np.ndarray, row: np.ndarray) -> None:
     """Blur (H, W) ``image`` into ``out`` (another array) with zero padding; ``row``: scratch of
     W + len(taps) - 1 values.
@@ -289,9 +280,8 @@ def _scratch(floats: int, flags: int) -> tuple[np.ndarray, np.ndarray]:
     """This thread's scratch arrays: at least ``floats`` float64 and ``flags`` booleans.
 
     Kept and reused because fresh arrays of the objective's size are mapped by the C
-    allocator and faulted in page by page at every call: that doubled the objective's cost
-    at 240x180. Per thread, since the live engine's searches and tests run on threads of
-    their own.
+    allocator and faulted in page by page at every call. Per thread, since the live engine's
+    searches and tests run on threads of their own.
     """
     have = getattr(_local, "arrays", None)
     if have is None or len(have[0]) < floats or len(have[1]) < flags:
