@@ -27,7 +27,7 @@ from spikegyro.cmax.config import CMaxConfig, OneRotationTest
 from spikegyro.events.calib import PinholeCamera
 from spikegyro.events.io import read_recording
 
-KINDS = {"search": "search", "not_one_rotation": "test", "refine": "tracking"}
+KINDS = {"search": "search", "rotation_flags": "test", "refine": "tracking"}
 
 
 def timed(function: Callable[..., Any], kind: str, spent: dict[str, float]) -> Callable:

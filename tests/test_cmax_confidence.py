@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from test_cmax import HEIGHT, WIDTH, F, point_track_events
 
-from spikegyro.cmax.confidence import one_rotation_explains, rotation_agreement
+from spikegyro.cmax.confidence import one_rotation_explains, rotation_agreement, rotation_flags
 from spikegyro.cmax.config import CMaxConfig
 from spikegyro.cmax.live import CMaxEstimator
 from spikegyro.cmax.problem import make_problem
 from spikegyro.cmax.search import estimate_window
 from spikegyro.events.calib import PinholeCamera
 from spikegyro.events.core import EventArray
-from spikegyro.stream.estimator import ILL_NOT_ONE_ROTATION
+from spikegyro.stream.estimator import ILL_LITTLE_MOTION, ILL_NOT_ONE_ROTATION
 
 CAMERA = PinholeCamera(WIDTH, HEIGHT, F, F, WIDTH / 2, HEIGHT / 2)
 
@@ -76,3 +76,37 @@ def test_live_estimates_carry_bit_4_on_two_rotations_only():
     assert _stream(single).mean() <= 0.1
     double = two_rotations((0.0, 60.0, 0.0), (0.0, -60.0, 0.0), duration_s=0.2, points=4000)
     assert _stream(double).mean() >= 0.9
+
+
+def _with_noise(events: EventArray, count: int, seed: int = 0) -> EventArray:
+    """``events`` and ``count`` events at uniformly random pixels and times of their span."""
+    rng = np.random.default_rng(seed)
+    x = np.concatenate([events.x, rng.integers(0, WIDTH, count)])
+    y = np.concatenate([events.y, rng.integers(0, HEIGHT, count)])
+    t = np.concatenate([events.t, rng.integers(events.t[0], events.t[-1] + 1, count)])
+    order = np.argsort(t, kind="stable")
+    return EventArray.from_arrays(x[order], y[order], t[order], np.ones(len(t)), WIDTH, HEIGHT)
+
+
+def test_weak_sharpening_of_little_motion_is_bit_2_and_disagreeing_halves_bit_4():
+    config = CMaxConfig()
+    judge = config.one_rotation.judge_px
+    # A slow pan in heavy noise: ω sharpens the window weakly, as so little motion would.
+    omega = np.radians([0.0, 8.0, 0.0])
+    slow = _with_noise(point_track_events(omega, seed=2, points=1500), 30_000)
+    problem = make_problem(slow, CAMERA, config, np.random.default_rng(0))
+    found = rotation_agreement(problem, omega, config)
+    assert found.gain < config.one_rotation.min_gain and not found.explains
+    assert rotation_flags(problem, omega, 0.5 * judge, config) == ILL_LITTLE_MOTION
+    # The same weak sharpening of an estimate that moves edges far: nothing it moves is sharp.
+    assert rotation_flags(problem, omega, 2 * judge, config) == ILL_NOT_ONE_ROTATION
+    # Halves that disagree are bit 4 at any motion; below a pixel of motion the test is silent.
+    two = two_rotations((0.0, 60.0, 0.0), (0.0, -60.0, 0.0))
+    estimate = estimate_window(two, CAMERA)
+    problem = make_problem(two, CAMERA, config, np.random.default_rng(0))
+    assert rotation_agreement(problem, estimate, config).agreement < 0.9
+    assert rotation_flags(problem, estimate, 0.5 * judge, config) == ILL_NOT_ONE_ROTATION
+    assert rotation_flags(problem, estimate, 0.5 * config.min_motion_px, config) == 0
+    one = point_track_events(np.radians([0.0, 60.0, 0.0]), seed=4, points=3000)
+    problem = make_problem(one, CAMERA, config, np.random.default_rng(0))
+    assert rotation_flags(problem, estimate_window(one, CAMERA), 2 * judge, config) == 0

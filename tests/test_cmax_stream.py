@@ -159,7 +159,7 @@ def test_background_searches_and_tests_do_not_depend_on_their_timing(monkeypatch
         return slow
 
     monkeypatch.setattr(live, "search", slowly(live.search))
-    monkeypatch.setattr(live, "not_one_rotation", slowly(live.not_one_rotation))
+    monkeypatch.setattr(live, "rotation_flags", slowly(live.rotation_flags))
     got = CMaxEstimator(CAMERA, config, t0_us=0).run(events, batch_us=5000)
     np.testing.assert_array_equal(got.t_us, expected.t_us)
     np.testing.assert_array_equal(got.omega, expected.omega)

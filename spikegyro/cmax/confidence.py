@@ -19,7 +19,11 @@ sharpening is too weak to judge (best gain over ω = 0 below ``min_gain``) are n
 The test also says no where ω sharpens the whole window weakly (gain under ``min_gain``) or
 leaves a half with enough events almost unsharpened (gain under ``min_half_gain``): a camera's
 rotation sharpens every textured part of the image, while objects moving before a still camera
-leave the rest of it as noise.
+leave the rest of it as noise. Weak sharpening of an estimate that moves edges by only a few
+pixels over its window (a stream's first windows, a slow pan) is another matter: so little
+motion blurs little, so it sharpens little under any rotation, and :func:`rotation_flags` says
+that the motion is too little to tell from none (``ill_posed`` bit 2) rather than that one
+rotation does not explain it (bit 4).
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from spikegyro.cmax.config import CMaxConfig, OneRotationTest
 from spikegyro.cmax.problem import Intrinsics, Problem, default_camera, make_problem
 from spikegyro.cmax.search import refine
 from spikegyro.events.core import EventArray
+from spikegyro.stream.estimator import ILL_LITTLE_MOTION, ILL_NOT_ONE_ROTATION
 
 
 @dataclass(frozen=True)
@@ -150,18 +155,25 @@ def one_rotation_explains(
     return rotation_agreement(problem, omega, config, test, rng).explains
 
 
-def not_one_rotation(
+def rotation_flags(
     problem: Problem,
     omega: np.ndarray,
     moved_px: float,
     config: CMaxConfig,
     rng: np.random.Generator | None = None,
-) -> bool:
-    """``ill_posed`` bit 4 for an estimate ω (3,) rad/s of ``problem`` that moves edges by
-    ``moved_px`` over its window: the halves disagree, or the estimate reports motion that
-    sharpens nothing (an estimate of too little motion to judge is not flagged here: bit 2
-    says so already)."""
+) -> int:
+    """The ``ill_posed`` bits that the test gives an estimate ω (3,) rad/s of ``problem``
+    which moves edges by ``moved_px`` (binned px) over its window: bit 4 where the halves
+    disagree, or where ω leaves the window or a half unsharpened; bit 2 instead where only the
+    sharpening fails and ω moves edges less than ``judge_px`` (so little motion blurs little,
+    so it sharpens little under any rotation: too little to tell from none). 0 below
+    ``min_motion_px``: bit 2 says so already."""
     test = config.one_rotation
     if test is None or moved_px < config.min_motion_px:
-        return False
-    return not rotation_agreement(problem, omega, config, test, rng).explains
+        return 0
+    found = rotation_agreement(problem, omega, config, test, rng)
+    if found.explains:
+        return 0
+    if moved_px < test.judge_px and not found.agreement < test.min_agreement:
+        return ILL_LITTLE_MOTION
+    return ILL_NOT_ONE_ROTATION

@@ -23,6 +23,11 @@ class OneRotationTest:
         min_gain: a half (or the window) whose best contrast is under this times that of
             ω = 0 shows no structure to judge by.
         min_half_gain: every half with enough events must be sharpened by ω at least this much.
+        judge_px: weak sharpening (``min_gain``, ``min_half_gain``) says that one rotation
+            does not explain a window's events only where ω moves edges at least this far over
+            the window (binned px); over less, a rotation sharpens little too, and weak
+            sharpening says that the motion is too little to tell from none (``ill_posed``
+            bit 2).
         min_events: halves with fewer events are not judged.
         iterations: BFGS iterations refining each half's ω from the window's.
         max_events: events (random subsample) each half keeps at most (speed).
@@ -35,6 +40,7 @@ class OneRotationTest:
     min_agreement: float = 0.9
     min_gain: float = 1.05
     min_half_gain: float = 1.015
+    judge_px: float = 5.0
     min_events: int = 500
     iterations: int = 1
     max_events: int = 1500

@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from spikegyro.cmax.confidence import not_one_rotation
+from spikegyro.cmax.confidence import rotation_flags
 from spikegyro.cmax.config import CMaxConfig, Progress
 from spikegyro.cmax.problem import (
     Intrinsics,
@@ -60,7 +60,6 @@ from spikegyro.events.windows import BIN_US
 from spikegyro.stream.estimator import (
     ILL_FEW_EVENTS,
     ILL_LITTLE_MOTION,
-    ILL_NOT_ONE_ROTATION,
     Estimates,
     output_times,
 )
@@ -110,7 +109,7 @@ class CMaxEstimator:
         self.emitted = 0
         self.produced = 0
         self._seen = self._in_view = 0
-        self._not_one, self._tested_us = False, _NEVER
+        self._verdict, self._tested_us = 0, _NEVER
         self.searches = 0
         self._search_job: tuple[Future, int] | None = None
         self._test_job: Future | None = None
@@ -322,18 +321,18 @@ class CMaxEstimator:
         if moved < config.min_motion_px:
             flags |= ILL_LITTLE_MOTION
         if self._test_job is not None:
-            self._not_one, self._test_job = self._test_job.result(), None
+            self._verdict, self._test_job = self._test_job.result(), None
         test = config.one_rotation
         if test is not None and t_us - self._tested_us >= 1000 * test.every_ms:
             rng = self._job_rng(_TEST, t_us)
-            job = self._submit(_TEST, not_one_rotation, problem, omega, moved, config, rng)
+            job = self._submit(_TEST, rotation_flags, problem, omega, moved, config, rng)
             if self._tested_us == _NEVER:  # no verdict would cover the stream's start: wait
-                self._not_one = job.result()
+                self._verdict = job.result()
             else:
                 self._test_job = job
             self._tested_us = t_us
-        if self._not_one and moved >= config.min_motion_px:
-            flags |= ILL_NOT_ONE_ROTATION
+        if moved >= config.min_motion_px:
+            flags |= self._verdict
         return flags
 
     def _speed(self, omega: np.ndarray) -> float:

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from spikegyro.cmax.confidence import not_one_rotation
+from spikegyro.cmax.confidence import rotation_flags
 from spikegyro.cmax.config import CMaxConfig, Progress
 from spikegyro.cmax.files import camera_for_file
 from spikegyro.cmax.problem import (
@@ -49,7 +49,6 @@ from spikegyro.events.windows import BIN_US, series_per_window
 from spikegyro.stream.estimator import (
     ILL_FEW_EVENTS,
     ILL_LITTLE_MOTION,
-    ILL_NOT_ONE_ROTATION,
     Estimates,
 )
 
@@ -198,9 +197,7 @@ class _Engine:
         moved = self.speed(omega) * span_us * 1e-6
         if moved < config.base.min_motion_px:
             flags |= ILL_LITTLE_MOTION
-        if not_one_rotation(problem, omega, moved, config.base, self.rng):
-            flags |= ILL_NOT_ONE_ROTATION
-        return flags
+        return flags | rotation_flags(problem, omega, moved, config.base, self.rng)
 
 
 def estimate_offline(

@@ -37,7 +37,8 @@ ILL_FEW_EVENTS = 1
 """``Estimates.ill_posed`` bit: the window held fewer events than the estimator asks for."""
 ILL_LITTLE_MOTION = 2
 """``Estimates.ill_posed`` bit: the estimate moves edges by less than a pixel over its window,
-so a rotation that small cannot be told from none."""
+or by a few pixels that sharpen the events too little (contrast maximization's one-rotation
+test), so a rotation that small cannot be told from none."""
 ILL_NOT_ONE_ROTATION = 4
 """``Estimates.ill_posed`` bit: one rotation does not explain the window's events (parts of the
 image disagree on it, or nothing in them is sharpened by it): the scene itself may move."""

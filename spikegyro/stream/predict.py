@@ -684,8 +684,9 @@ def summary_lines(result: StreamResult, out: str | os.PathLike, warm_up: bool = 
     if few or little:
         lines.append(
             f"warning: {few:,} of {result.estimates:,} estimates had fewer events than asked "
-            f"for and {little:,} moved edges by less than a pixel (too little motion to tell "
-            "from none): see the ill_posed column; their ω is unreliable."
+            f"for and {little:,} moved edges too little to tell from none (under a pixel, or "
+            "a few pixels that sharpen nothing): see the ill_posed column; their ω is "
+            "unreliable."
         )
     if not_one:
         lines.append(
