@@ -19,11 +19,11 @@ sharpening is too weak to judge (best gain over ω = 0 below ``min_gain``) are n
 The test also says no where ω sharpens the whole window weakly (gain under ``min_gain``) or
 leaves a half with enough events almost unsharpened (gain under ``min_half_gain``): a camera's
 rotation sharpens every textured part of the image, while objects moving before a still camera
-leave the rest of it as noise. Weak sharpening of an estimate that moves edges by only a few
-pixels over its window (a stream's first windows, a slow pan) is another matter: so little
-motion blurs little, so it sharpens little under any rotation, and :func:`rotation_flags` says
-that the motion is too little to tell from none (``ill_posed`` bit 2) rather than that one
-rotation does not explain it (bit 4).
+leave the rest of it as noise. A weak gain of an estimate that moves edges by only a few pixels
+over its window (a stream's first windows, a slow pan) is another matter: so little motion
+blurs little, so it sharpens little under any rotation, and :func:`rotation_flags` says that the
+motion is too little to tell from none (``ill_posed`` bit 2) rather than that one rotation does
+not explain it (bit 4).
 """
 
 from __future__ import annotations
@@ -164,16 +164,17 @@ def rotation_flags(
 ) -> int:
     """The ``ill_posed`` bits that the test gives an estimate ω (3,) rad/s of ``problem``
     which moves edges by ``moved_px`` (binned px) over its window: bit 4 where the halves
-    disagree, or where ω leaves the window or a half unsharpened; bit 2 instead where only the
-    sharpening fails and ω moves edges less than ``judge_px`` (so little motion blurs little,
-    so it sharpens little under any rotation: too little to tell from none). 0 below
-    ``min_motion_px``: bit 2 says so already."""
+    disagree, or where ω leaves the window or a half unsharpened; bit 2 instead where the halves
+    do not disagree and ω sharpens the whole window weakly while moving edges less than
+    ``judge_px`` (so little motion blurs little, so it sharpens little under any rotation: too
+    little to tell from none). 0 below ``min_motion_px``: bit 2 says so already."""
     test = config.one_rotation
     if test is None or moved_px < config.min_motion_px:
         return 0
     found = rotation_agreement(problem, omega, config, test, rng)
     if found.explains:
         return 0
-    if moved_px < test.judge_px and not found.agreement < test.min_agreement:
+    disagree = found.agreement < test.min_agreement
+    if not disagree and found.gain < test.min_gain and moved_px < test.judge_px:
         return ILL_LITTLE_MOTION
     return ILL_NOT_ONE_ROTATION

@@ -23,11 +23,10 @@ class OneRotationTest:
         min_gain: a half (or the window) whose best contrast is under this times that of
             ω = 0 shows no structure to judge by.
         min_half_gain: every half with enough events must be sharpened by ω at least this much.
-        judge_px: weak sharpening (``min_gain``, ``min_half_gain``) says that one rotation
-            does not explain a window's events only where ω moves edges at least this far over
-            the window (binned px); over less, a rotation sharpens little too, and weak
-            sharpening says that the motion is too little to tell from none (``ill_posed``
-            bit 2).
+        judge_px: a window's weak gain (under ``min_gain``) says that one rotation does not
+            explain its events only where ω moves edges at least this far over the window
+            (binned px); over less, a rotation sharpens little too, and a weak gain says that
+            the motion is too little to tell from none (``ill_posed`` bit 2).
         min_events: halves with fewer events are not judged.
         iterations: BFGS iterations refining each half's ω from the window's.
         max_events: events (random subsample) each half keeps at most (speed).
