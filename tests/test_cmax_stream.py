@@ -61,6 +61,19 @@ def test_thinning_keeps_the_rate_and_does_not_depend_on_batching() -> None:
     assert Thinning(0).keep(t) is None
 
 
+def test_thinning_keeps_every_event_of_a_slot_after_an_empty_one() -> None:
+    # 10 ms at 8 M events/s, 10 ms without events, then 10 ms at 8 M events/s again: the slot
+    # after the empty one has no count to go by and keeps every event; the one after it thins.
+    rng = np.random.default_rng(4)
+    t = np.sort(np.concatenate([rng.integers(0, 10_000, 80_000),
+                                rng.integers(20_000, 40_000, 160_000)]))  # fmt: skip
+    kept = t[Thinning(2e6).keep(t)]
+    counts = np.bincount(kept // 10_000, minlength=4)
+    assert counts[0] == 80_000 and counts[1] == 0  # the stream's first slot: no count before
+    assert counts[2] == ((t >= 20_000) & (t < 30_000)).sum()
+    assert 15_000 <= counts[3] <= 21_000  # about the rate's 20,000 per slot
+
+
 def test_window_policy_counts_motion_bounds_and_fixed() -> None:
     t = np.arange(0, 1_000_000, 100)  # 10 events per ms
     policy = WindowPolicy(min_events=3000, target_px=5.0, min_ms=2.0, max_ms=300.0)

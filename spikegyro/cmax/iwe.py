@@ -42,19 +42,30 @@ def gaussian_taps(sigma: float) -> np.ndarray:
 def _rotation_coefficients(theta2: float) -> tuple[float, float, float]:
     """sin θ/θ, (1 - cos θ)/θ², (θ - sin θ)/θ³ from θ².
 
-    Below θ = 0.5 rad (every event of a real window) their Taylor series to θ⁶, which is exact
-    to 1e-8 there and much cheaper than sqrt, sin and cos per event.
+    Below θ = 0.5 rad (every event of a real window) their Taylor series
+    (:func:`_taylor_coefficients`), much cheaper than sqrt, sin and cos per event.
     """
-    if theta2 < 0.25:
-        t4 = theta2 * theta2
-        return (
-            1.0 - theta2 / 6.0 + t4 / 120.0 - t4 * theta2 / 5040.0,
-            0.5 - theta2 / 24.0 + t4 / 720.0 - t4 * theta2 / 40320.0,
-            1.0 / 6.0 - theta2 / 120.0 + t4 / 5040.0 - t4 * theta2 / 362880.0,
-        )
+    if theta2 < SMALL_ANGLE2:
+        return _taylor_coefficients(theta2)
     theta = math.sqrt(theta2)
     s = math.sin(theta)
     return s / theta, (1.0 - math.cos(theta)) / theta2, (theta - s) / (theta2 * theta)
+
+
+SMALL_ANGLE2 = 0.25
+"""θ² (rad²) below which :func:`_taylor_coefficients` is exact to 1e-8."""
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, inline="always")
+def _taylor_coefficients(theta2: float) -> tuple[float, float, float]:
+    """:func:`_rotation_coefficients` by their Taylor series to θ⁶: for θ² < ``SMALL_ANGLE2``.
+    Branch-free, so that a loop over events that calls it vectorizes."""
+    t4 = theta2 * theta2
+    return (
+        1.0 - theta2 / 6.0 + t4 / 120.0 - t4 * theta2 / 5040.0,
+        0.5 - theta2 / 24.0 + t4 / 720.0 - t4 * theta2 / 40320.0,
+        1.0 / 6.0 - theta2 / 120.0 + t4 / 5040.0 - t4 * theta2 / 362880.0,
+    )
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -90,8 +101,12 @@ def _blur_into(image: np.ndarray, taps: np.ndarray, out: np.ndarray, row: np.nda
                 target[x] += w * row[x + k]
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
-def _rotate_project(
+@numba.njit(cache=True, nogil=True, fastmath=True, inline="always")
+def _project(
+    a: float,
+    b: float,
+    c: float,
+    theta2: float,
     px: float,
     py: float,
     pz: float,
@@ -101,23 +116,23 @@ def _rotate_project(
     inv: float,
     with_gradient: bool,
 ) -> tuple[float, float, bool, float, float, float, float, float, float]:
-    """Ray ``(x, y, 1)`` rotated by the rotation vector φ = (px, py, pz) and projected.
+    """Ray ``(x, y, 1)`` rotated by the rotation vector φ = (px, py, pz) and projected, given
+    θ² = |φ|² and φ's :func:`_rotation_coefficients` ``a, b, c``.
 
     Returns ``(u, v, valid)`` and, with ``with_gradient``, ``-du/dφ`` and ``-dv/dφ`` (px per
     rad, 3 values each; zeros without). Scalars only: no per-event arrays.
     """
     fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
-    theta2 = px * px + py * py + pz * pz
-    a, b, c = _rotation_coefficients(theta2)
     # p x b and p x (p x b) for the ray b = (x, y, 1)
     k0, k1, k2 = py - pz * y, pz * x - px, px * y - py * x
     kk0, kk1, kk2 = py * k2 - pz * k1, pz * k0 - px * k2, px * k1 - py * k0
     rx, ry, rz = x + a * k0 + b * kk0, y + a * k1 + b * kk1, 1.0 + a * k2 + b * kk2
-    iz = 1.0 / rz if rz > 0.1 else 1.0
+    forward = rz > 0.1
+    iz = 1.0 / (rz if forward else 1.0)
     u = ((fx * rx * iz + cx) + 0.5) * inv - 0.5
     v = ((fy * ry * iz + cy) + 0.5) * inv - 0.5
     if not with_gradient:
-        return u, v, rz > 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        return u, v, forward, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     # -du/dφ = J(φ)ᵀ (g x r) for g = du/dr, and Jᵀ h = h - b φ x h + c (φ (φ·h) - θ² h)
     g0, g2 = fx * iz * inv, -fx * rx * iz * iz * inv  # du/dr (its y component is 0)
     h0, h1, h2 = -g2 * ry, g2 * rx - g0 * rz, g0 * ry
@@ -133,7 +148,7 @@ def _rotate_project(
     v0 = h0 - b * c0 + c * (px * ph - theta2 * h0)
     v1 = h1 - b * c1 + c * (py * ph - theta2 * h1)
     v2 = h2 - b * c2 + c * (pz * ph - theta2 * h2)
-    return u, v, rz > 0.1, u0, u1, u2, v0, v1, v2
+    return u, v, forward, u0, u1, u2, v0, v1, v2
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -165,9 +180,9 @@ def warp(
     n, k = bx.shape[0], params.shape[0]
     m = n if with_gradient else 0
     u, v, valid = np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)
-    du, dv = np.empty((m, k)), np.empty((m, k))
+    du, dv = np.empty((k, m)), np.empty((k, m))
     _warp_into(bx, by, dt, params, intrinsics, scale, u, v, valid, du, dv)
-    return u, v, valid, du, dv
+    return u, v, valid, du.T, dv.T
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -184,24 +199,85 @@ def _warp_into(
     du: np.ndarray,
     dv: np.ndarray,
 ) -> None:
-    """:func:`warp` into given arrays; the gradient where ``du`` and ``dv`` have rows."""
+    """:func:`warp` into given arrays; the gradient where ``du`` and ``dv`` (k, N), one row per
+    parameter, have columns."""
     k = params.shape[0]
     inv = 1.0 / scale
-    with_gradient = du.shape[0] > 0
+    with_gradient = du.shape[1] > 0
+    if k == 3 and _small_angles(params, dt):
+        _warp_small(bx, by, dt, params, intrinsics, inv, u, v, valid, du, dv, with_gradient)
+        return
     for i in range(bx.shape[0]):
         d = dt[i]
         h = 0.5 * d * d if k == 6 else 0.0
         a0, a1, a2 = (params[3], params[4], params[5]) if k == 6 else (0.0, 0.0, 0.0)
-        u[i], v[i], valid[i], u0, u1, u2, v0, v1, v2 = _rotate_project(
-            -params[0] * d + a0 * h, -params[1] * d + a1 * h, -params[2] * d + a2 * h,
-            bx[i], by[i], intrinsics, inv, with_gradient,
-        )  # fmt: skip
+        px, py, pz = -params[0] * d + a0 * h, -params[1] * d + a1 * h, -params[2] * d + a2 * h
+        theta2 = px * px + py * py + pz * pz
+        a, b, c = _rotation_coefficients(theta2)
+        u[i], v[i], valid[i], u0, u1, u2, v0, v1, v2 = _project(
+            a, b, c, theta2, px, py, pz, bx[i], by[i], intrinsics, inv, with_gradient
+        )
         if with_gradient:
-            du[i, 0], du[i, 1], du[i, 2] = d * u0, d * u1, d * u2
-            dv[i, 0], dv[i, 1], dv[i, 2] = d * v0, d * v1, d * v2
+            du[0, i], du[1, i], du[2, i] = d * u0, d * u1, d * u2
+            dv[0, i], dv[1, i], dv[2, i] = d * v0, d * v1, d * v2
             if k == 6:
-                du[i, 3], du[i, 4], du[i, 5] = -h * u0, -h * u1, -h * u2
-                dv[i, 3], dv[i, 4], dv[i, 5] = -h * v0, -h * v1, -h * v2
+                du[3, i], du[4, i], du[5, i] = -h * u0, -h * u1, -h * u2
+                dv[3, i], dv[4, i], dv[5, i] = -h * v0, -h * v1, -h * v2
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _small_angles(params: np.ndarray, dt: np.ndarray) -> bool:
+    """Whether constant ω ``params`` (3,) turns every event's ray by θ² < ``SMALL_ANGLE2``."""
+    longest = 0.0
+    for i in range(dt.shape[0]):
+        longest = max(longest, abs(dt[i]))
+    w2 = params[0] * params[0] + params[1] * params[1] + params[2] * params[2]
+    return w2 * longest * longest < SMALL_ANGLE2
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _warp_small(
+    bx: np.ndarray,
+    by: np.ndarray,
+    dt: np.ndarray,
+    params: np.ndarray,
+    intrinsics: np.ndarray,
+    inv: float,
+    u: np.ndarray,
+    v: np.ndarray,
+    valid: np.ndarray,
+    du: np.ndarray,
+    dv: np.ndarray,
+    with_gradient: bool,
+) -> None:
+    """:func:`_warp_into` of a constant ω under which every angle is small: the same values
+    from the Taylor coefficients only, in a loop without branches, which vectorizes (the warp
+    was the objective's largest cost)."""
+    # Two loops, each calling with a constant: a body without branches.
+    if not with_gradient:
+        for i in range(bx.shape[0]):
+            a, b, c, t2, px, py, pz = _small_turn(params, dt[i])
+            u[i], v[i], valid[i], _, _, _, _, _, _ = _project(
+                a, b, c, t2, px, py, pz, bx[i], by[i], intrinsics, inv, False
+            )
+        return
+    for i in range(bx.shape[0]):
+        d = dt[i]
+        a, b, c, t2, px, py, pz = _small_turn(params, d)
+        u[i], v[i], valid[i], u0, u1, u2, v0, v1, v2 = _project(
+            a, b, c, t2, px, py, pz, bx[i], by[i], intrinsics, inv, True
+        )
+        du[0, i], du[1, i], du[2, i] = d * u0, d * u1, d * u2
+        dv[0, i], dv[1, i], dv[2, i] = d * v0, d * v1, d * v2
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, inline="always")
+def _small_turn(omega: np.ndarray, d: float) -> tuple[float, ...]:
+    """``a, b, c, θ², φx, φy, φz`` of :func:`_project` for φ = -ω ``d``, a small angle."""
+    px, py, pz = -omega[0] * d, -omega[1] * d, -omega[2] * d
+    theta2 = px * px + py * py + pz * pz
+    a, b, c = _taylor_coefficients(theta2)
+    return a, b, c, theta2, px, py, pz
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -310,8 +386,8 @@ def _contrast_into(
     else 0."""
     n, k, pixels = bx.shape[0], params.shape[0], width * height
     u, v = floats[:n], floats[n : 2 * n]
-    du = floats[2 * n : 2 * n + m * k].reshape((m, k))
-    dv = floats[2 * n + m * k : 2 * n + 2 * m * k].reshape((m, k))
+    du = floats[2 * n : 2 * n + m * k].reshape((k, m))
+    dv = floats[2 * n + m * k : 2 * n + 2 * m * k].reshape((k, m))
     rest = 2 * n + 2 * m * k
     image = floats[rest : rest + pixels].reshape((height, width))
     blurred = floats[rest + pixels : rest + 2 * pixels].reshape((height, width))
@@ -342,7 +418,7 @@ def _contrast_into(
         gv = (1.0 - fu) * (q01 - q00) + fu * (q11 - q10)
         w = weights[i]
         for j in range(k):
-            gradient[j] += w * (gu * du[i, j] + gv * dv[i, j])
+            gradient[j] += w * (gu * du[j, i] + gv * dv[j, i])
     return variance, gradient * (2.0 / pixels)
 
 
