@@ -118,7 +118,9 @@ def test_stream_cut_mid_packet(tmp_path, monkeypatch, capsys):
 @needs_stream
 def test_ctrl_c_writes_what_was_estimated(tmp_path):
     url = f"dv://127.0.0.1:{free_port()}"
-    server = serve(BOXES, url)
+    # At a quarter of its pace (8 s): the server paces from the client's connection, so a
+    # client slow to start reading must not reach the stream's end before the Ctrl-C.
+    server = serve(BOXES, url, speed=0.25)
     out = tmp_path / "pred.csv"
     run = subprocess.Popen(
         [sys.executable, "-m", "spikegyro", "predict", url, "--out", str(out)],
