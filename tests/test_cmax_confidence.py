@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_cmax import HEIGHT, WIDTH, F, point_track_events
+from test_cmax import HEIGHT, WIDTH, F, point_track_events, with_extra_events
 
 from spikegyro.cmax.confidence import one_rotation_explains, rotation_agreement, rotation_flags
 from spikegyro.cmax.config import CMaxConfig
@@ -78,22 +78,14 @@ def test_live_estimates_carry_bit_4_on_two_rotations_only():
     assert _stream(double).mean() >= 0.9
 
 
-def _with_noise(events: EventArray, count: int, seed: int = 0) -> EventArray:
-    """``events`` and ``count`` events at uniformly random pixels and times of their span."""
-    rng = np.random.default_rng(seed)
-    x = np.concatenate([events.x, rng.integers(0, WIDTH, count)])
-    y = np.concatenate([events.y, rng.integers(0, HEIGHT, count)])
-    t = np.concatenate([events.t, rng.integers(events.t[0], events.t[-1] + 1, count)])
-    order = np.argsort(t, kind="stable")
-    return EventArray.from_arrays(x[order], y[order], t[order], np.ones(len(t)), WIDTH, HEIGHT)
-
-
 def test_weak_sharpening_of_little_motion_is_bit_2_and_disagreeing_halves_bit_4():
     config = CMaxConfig()
     judge = config.one_rotation.judge_px
     # A slow pan in heavy noise: ω sharpens the window weakly, as so little motion would.
     omega = np.radians([0.0, 8.0, 0.0])
-    slow = _with_noise(point_track_events(omega, seed=2, points=1500), 30_000)
+    rng = np.random.default_rng(0)
+    noise = rng.integers(0, WIDTH, 30_000), rng.integers(0, HEIGHT, 30_000)
+    slow = with_extra_events(point_track_events(omega, seed=2, points=1500), *noise, seed=1)
     problem = make_problem(slow, CAMERA, config, np.random.default_rng(0))
     found = rotation_agreement(problem, omega, config)
     assert found.gain < config.one_rotation.min_gain and not found.explains
