@@ -158,6 +158,8 @@ def main() -> None:
         "--repeat", type=int, default=1, help="Runs per row; the least CPU time is reported."
     )
     args = parser.parse_args()
+    if args.repeat < 1:
+        parser.error(f"--repeat {args.repeat}: give at least 1 run per row")
     if args.make_sim:
         args.make_sim.mkdir(parents=True, exist_ok=True)
         for w, h in SIZES:
