@@ -29,3 +29,11 @@ WIDTH = typer.Option(None, help="Sensor width, pixels (text files default to 240
 
 HEIGHT = typer.Option(None, help="Sensor height, pixels (text files default to 180).")
 """``--height``: the sensor height of event files that do not say."""
+
+CLOCK = typer.Option(
+    None,
+    "--clock",
+    help="Run the network on this clock instead of its own: paper (1 ms steps) or "
+    "events:N[:MIN-MAX] (a step closes after N events, within MIN-MAX ms).",
+)
+"""``--clock``: the spiking network's clock (:meth:`spikegyro.events.clock.Clock.parse`)."""

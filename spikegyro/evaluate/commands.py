@@ -54,6 +54,7 @@ def evaluate(
         None, "--example", help="Window index for a qualitative figure (repeatable)."
     ),
     speed_bins: str = typer.Option("paper", "--speed-bins", help=SPEED_BINS_HELP),
+    clock: str = options.CLOCK,
 ) -> None:
     """Score a model and the mean predictor: metrics.json, predictions, figures and a report."""
     run_evaluation(
@@ -68,6 +69,7 @@ def evaluate(
         limit=limit,
         examples=example or None,
         speed_bins=parse_speed_bins(speed_bins),
+        clock=clock,
     )
 
 
@@ -140,6 +142,7 @@ def evaluate_real(
     speed_bins: str = typer.Option("paper", "--speed-bins", help=SPEED_BINS_HELP),
     width: int = options.WIDTH,
     height: int = options.HEIGHT,
+    clock: str = options.CLOCK,
 ) -> None:
     """Score SNN-6, CMax and the mean predictor against a gyro on a real recording."""
     config = RealEvalConfig(
@@ -153,6 +156,7 @@ def evaluate_real(
         gyro_offset=gyro_offset,
         offset=replace(OffsetConfig(), max_offset_ms=max_offset_ms),
         speed_bins=parse_speed_bins(speed_bins),
+        clock=clock,
     )
     run_real_evaluation(
         recording,

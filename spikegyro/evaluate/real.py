@@ -76,9 +76,14 @@ from spikegyro.events.imu import (
 from spikegyro.events.io import atomic_dir, read_gyro, read_recording
 from spikegyro.events.windows import BIN_US, bin_means, event_windows, time_windows
 from spikegyro.pretrained import resolve_checkpoint
+from spikegyro.stream.clocked import ClockedPredictor, hold_on_grid
 from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_engine
-from spikegyro.stream.predict import WARMUP_STEPS, StreamPredictor, event_mapper, model_camera
-from spikegyro.stream.stateful import StreamingSNN
+from spikegyro.stream.predict import (
+    WARMUP_STEPS,
+    clocked_predictor,
+    event_mapper,
+    spec_with_clock,
+)
 
 REAL_METRICS_FORMAT = "spikegyro-real-metrics/1"
 DEFAULT_WINDOW_MS = 20.0
@@ -117,6 +122,7 @@ class RealEvalConfig:
     gyro_offset: str = "0"
     offset: OffsetConfig = OffsetConfig()
     speed_bins: tuple[float, ...] = SPEED_BIN_EDGES_DEG_S  # deg/s
+    clock: str | None = None  # the SNN on this clock instead of its own (Clock.parse)
 
 
 def parse_gyro_offset(text: str) -> float | None:
@@ -142,23 +148,26 @@ def _snn_per_ms(
     steps: int,
     source: str,
     progress: Any,
+    clock: str | None = None,
 ) -> tuple[np.ndarray, dict[str, Any]]:
     # the exact stream; networks it cannot run (grid readout, log-polar input) go batched
     engine, payload = load_engine(checkpoint)
-    spec = payload.get("input", {})
+    spec = spec_with_clock(payload.get("input", {}), clock)
+    payload = {**payload, "input": spec}
     mapper = event_mapper(events.sensor_size, spec, calibration, source)
-    if isinstance(engine, StreamingSNN):
-        engine.reset()
-        predictor = StreamPredictor(engine, model_camera(spec).width, t0)
-    else:
-        predictor = engine(model_camera(spec), t0)
-    outputs = []
+    predictor = clocked_predictor(engine, spec, t0)
+    stamps, outputs = [], []
     for k in range(0, steps, SNN_CHUNK_MS):
         chunk = events.slice_time(t0 + k * BIN_US, t0 + (k + SNN_CHUNK_MS) * BIN_US)
-        outputs.append(predictor.push(mapper(chunk))[1])
+        for out, part in zip((stamps, outputs), predictor.push(mapper(chunk)), strict=True):
+            out.append(part)
         progress(min(k + SNN_CHUNK_MS, steps), steps)
-    outputs.append(predictor.finish(t0 + steps * BIN_US)[1])
+    for out, part in zip((stamps, outputs), predictor.finish(t0 + steps * BIN_US), strict=True):
+        out.append(part)
     omega = np.concatenate(outputs)
+    if isinstance(predictor, ClockedPredictor):  # steps of their own: held per ms
+        grid = t0 + BIN_US * np.arange(1, steps + 1)
+        omega = hold_on_grid(np.concatenate(stamps), omega, grid)
     if omega.shape[0] != steps:
         raise RuntimeError(f"SNN gave {omega.shape[0]} steps, expected {steps}")
     return omega, payload
@@ -459,6 +468,7 @@ def predict_real(plan: RealPlan, console: Console) -> RealPredictions:
             plan.steps,
             str(plan.inputs.recording),
             tracker("SNN-6"),
+            plan.config.clock,
         )
         offline = estimate_offline(events, camera, t0_us=t0, progress=tracker("CMax, offline"))
         cmax_ms = cmax_series.per_ms(offline.t_us, offline.omega, plan.ends)

@@ -20,6 +20,7 @@ paper's Table I.
 
 from __future__ import annotations
 
+import itertools
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +33,7 @@ from rich.progress import Progress
 
 from spikegyro.baselines.mean import mean_predictions, training_mean_omega
 from spikegyro.checks import check_device, check_output_dir
-from spikegyro.errors import InputError
+from spikegyro.errors import InputError, check_interrupt
 from spikegyro.evaluate import figures, metrics
 from spikegyro.evaluate.bins import (
     SPEED_BIN_EDGES_DEG_S,
@@ -53,6 +54,8 @@ from spikegyro.evaluate.report import (
     write_report,
 )
 from spikegyro.evaluate.spikes import spike_statistics, spike_table
+from spikegyro.events.clock import Clock
+from spikegyro.events.core import EventArray
 from spikegyro.events.io import atomic_dir, atomic_path
 from spikegyro.events.plot import plot_events_and_omega
 from spikegyro.models.official import load_official
@@ -62,12 +65,18 @@ from spikegyro.models.registry import (
     load_checkpoint,
     resolve_checkpoint,
 )
-from spikegyro.train.data import InputSpec, Window, fixed_windows
+from spikegyro.stream.clocked import clocked_per_ms
+from spikegyro.stream.model import load_engine
+from spikegyro.stream.predict import clocked_predictor
+from spikegyro.train.data import InputSpec, Window, fixed_windows, with_clock
 from spikegyro.train.infer import predict_windows, spec_of
 
 MODEL_CHOICES = ("cmax",)
 DEFAULT_EXAMPLES = 3
 
+
+PAPER_WINDOW_MS = 100
+"""The paper's evaluation windows, ms (an event-clock network is scored on them too)."""
 
 def _is_official(path: Path) -> bool:
     """Whether ``path`` holds the official repository's weights rather than our format."""
@@ -215,6 +224,30 @@ def _predict(
         )
 
 
+def _predict_clocked(
+    checkpoint: Path, spec: InputSpec, windows: list[Window], console: Console
+) -> np.ndarray:
+    """An event-clock network over each sequence as one stream, as ``predict`` runs it (its
+    steps may be longer than a window's first 50 ms), read at every real millisecond of the
+    windows, on the exact event-driven stream; (n, T, 3) rad/s."""
+    engine, _ = load_engine(checkpoint)
+    out = np.zeros((len(windows), windows[0].num_steps, 3))
+    groups = [list(g) for _, g in itertools.groupby(range(len(windows)),
+                                                     key=lambda i: windows[i].source)]  # fmt: skip
+    with Progress(console=console, transient=True) as bar:
+        task = bar.add_task("predicting (event clock)", total=len(windows))
+        for group in groups:
+            check_interrupt()
+            t0 = windows[group[0]].t_start_us
+            events = EventArray.concatenate([windows[i].events for i in group])
+            events = events if spec.scale == 1.0 else events.rescale(spec.scale)
+            predictor = clocked_predictor(engine, spec.as_dict(), t0)
+            series = clocked_per_ms(predictor, events, t0, out.shape[1] * len(group))
+            out[group] = series.reshape(len(group), out.shape[1], 3)
+            bar.update(task, advance=len(group))
+    return out
+
+
 def _example_figures(
     out_dir: Path,
     windows: list[Window],
@@ -266,6 +299,7 @@ class EvalOptions:
     num_examples: int = DEFAULT_EXAMPLES
     spike_windows: int = 16
     speed_bins: tuple[float, ...] = SPEED_BIN_EDGES_DEG_S
+    clock: str | None = None
 
 
 @dataclass
@@ -282,6 +316,7 @@ class EvalPlan:
     examples: list[int]
     device: str
     warnings: list[str] = field(default_factory=list)
+    checkpoint: Path | None = None
 
 
 @dataclass
@@ -342,8 +377,15 @@ def plan_evaluation(options: EvalOptions) -> EvalPlan:
     """
     checkpoint, device = _check_options(options)
     subject, spec, default_name, info = _subject(checkpoint)
+    if options.clock is not None:
+        spec = with_clock(spec, Clock.parse(options.clock))
+        info["input"] = spec.as_dict()
     name = options.name or default_name
-    windows = fixed_windows(options.data_dir, options.split, spec.window_ms)
+    if not spec.step_clock.is_paper:
+        name = f"{name}, {spec.step_clock.label}"
+    # an event-clock network is scored on the paper's windows, per real millisecond
+    window_ms = spec.window_ms if spec.step_clock.is_paper else PAPER_WINDOW_MS
+    windows = fixed_windows(options.data_dir, options.split, window_ms)
     if options.limit is not None:
         windows = windows[: max(0, options.limit)]
     if not windows:
@@ -367,6 +409,7 @@ def plan_evaluation(options: EvalOptions) -> EvalPlan:
         picks,
         device,
         _data_warnings(windows, spec, name),
+        None if checkpoint is None else Path(checkpoint),
     )
 
 
@@ -391,7 +434,10 @@ def predict_evaluation(plan: EvalPlan, console: Console) -> EvalPredictions:
     predictor's omega comes from the training split (0 without one, with a warning)."""
     windows = plan.windows
     gt = np.stack([w.omega for w in windows]).astype(np.float64)
-    raw = _predict(plan.subject, windows, plan.options.batch_size, plan.device, console)
+    if plan.checkpoint is not None and not plan.spec.step_clock.is_paper:
+        raw = _predict_clocked(plan.checkpoint, plan.spec, windows, console)
+    else:
+        raw = _predict(plan.subject, windows, plan.options.batch_size, plan.device, console)
     pred, nonfinite = _finite(raw.astype(np.float64), plan.name, plan.warnings)
     mean_omega, mean_source = _mean_omega(plan.options.data_dir, plan.warnings)
     spikes = _spike_statistics(plan, console)
@@ -500,6 +546,7 @@ def run_evaluation(
     num_examples: int = DEFAULT_EXAMPLES,
     spike_windows: int = 16,
     speed_bins: tuple[float, ...] = SPEED_BIN_EDGES_DEG_S,
+    clock: str | None = None,
     console: Console | None = None,
 ) -> dict[str, Any]:
     """Evaluate a checkpoint (or ``model="cmax"``) and the mean predictor on ``data_dir/split``.
@@ -519,6 +566,7 @@ def run_evaluation(
             spread from slow to fast.
         spike_windows: windows (the first ones with events) used for the SNN spike statistics.
         speed_bins: edges of the speed bins, deg/s (:mod:`spikegyro.evaluate.bins`).
+        clock: run the SNN on this clock (:meth:`Clock.parse`) instead of its own.
 
     Returns:
         The dict written to ``metrics.json``.
@@ -538,6 +586,7 @@ def run_evaluation(
         num_examples,
         spike_windows,
         tuple(speed_bins),
+        clock,
     )
     plan = plan_evaluation(options)
     predicted = predict_evaluation(plan, console)

@@ -127,6 +127,18 @@ _SLOW_SHARE = typer.Option(
 _SLOW_SPEED = typer.Option(
     (5.0, 100.0), "--slow-speed", help="Their speed range MIN MAX, deg/s (log-uniform)."
 )
+_OMEGA_SCALE = typer.Option(
+    TrajectoryConfig.omega_scale_deg,
+    "--omega-scale",
+    min=0.0,
+    help="The other sequences' per-axis speed scale, deg/s (the paper's motion: 107).",
+)
+_ACCEL_STD = typer.Option(
+    TrajectoryConfig.accel_std_deg,
+    "--accel-std",
+    min=0.0,
+    help="Their angular acceleration per axis, deg/s² (std).",
+)
 
 
 def simulate_dataset(
@@ -144,6 +156,8 @@ def simulate_dataset(
     scene_mix: str = _SCENE_MIX,
     slow_share: float = _SLOW_SHARE,
     slow_speed: tuple[float, float] = _SLOW_SPEED,
+    omega_scale: float = _OMEGA_SCALE,
+    accel_std: float = _ACCEL_STD,
     contrast_mean: float = typer.Option(0.45, help="Mean contrast threshold (log units, > 0)."),
     contrast_std: float = typer.Option(0.05, min=0.0, help="Per-sequence threshold spread."),
     mismatch_std: float = typer.Option(0.03, min=0.0, help="Per-pixel threshold std."),
@@ -164,7 +178,7 @@ def simulate_dataset(
     config = SimConfig(
         duration_ms=duration_ms,
         camera=_camera(width, height, fx, fy, cx, cy),
-        trajectory=_trajectory(slow_share, slow_speed),
+        trajectory=_trajectory(slow_share, slow_speed, omega_scale, accel_std),
         contrast_mean=contrast_mean,
         contrast_std=contrast_std,
         events=EventSimConfig(
@@ -191,9 +205,15 @@ def simulate_dataset(
     )
 
 
-def _trajectory(slow_share: float, slow_speed: tuple[float, float]) -> TrajectoryConfig:
+def _trajectory(
+    slow_share: float, slow_speed: tuple[float, float], omega_scale: float, accel_std: float
+) -> TrajectoryConfig:
     config = TrajectoryConfig(
-        slow_share=slow_share, slow_min_deg=slow_speed[0], slow_max_deg=slow_speed[1]
+        omega_scale_deg=omega_scale,
+        accel_std_deg=accel_std,
+        slow_share=slow_share,
+        slow_min_deg=slow_speed[0],
+        slow_max_deg=slow_speed[1],
     )
     try:
         config.validate()

@@ -23,7 +23,13 @@ from spikegyro.stream.console import (
 from spikegyro.stream.estimator import GyroEstimator
 from spikegyro.stream.live import check_live_options, run_live
 from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_engine
-from spikegyro.stream.predict import SNN_REAL_DATA_NOTE, SNNEstimator, is_simulated, summary_lines
+from spikegyro.stream.predict import (
+    SNN_REAL_DATA_NOTE,
+    SNNEstimator,
+    is_simulated,
+    spec_with_clock,
+    summary_lines,
+)
 from spikegyro.stream.writer import STDOUT, check_prediction_path
 
 SOURCE = typer.Argument(
@@ -121,6 +127,7 @@ def predict(
     segment_ms: int = SEGMENT_MS,
     context_ms: int = CONTEXT_MS,
     batch: int = BATCH,
+    clock: str = options.CLOCK,
 ) -> None:
     """Estimate ω = (ω_x, ω_y, ω_z) in rad/s, streaming, with a real-time-factor bar.
 
@@ -141,10 +148,10 @@ def predict(
     )
     console = Console(stderr=True)
     print_lines(console, inputs.notes)
+    engine_options = (device, threads, segment_ms, context_ms, batch)
     if live:  # the estimator first: the stream does not wait for it
-        engine_options = (device, threads, segment_ms, context_ms, batch)
         estimator = _live_estimator(
-            method, events, inputs, rate_hz, window_ms, checkpoint, engine_options
+            method, events, inputs, rate_hz, window_ms, checkpoint, engine_options, clock
         )
         source = open_source(events)
         if method == "cmax":
@@ -168,10 +175,9 @@ def predict(
         )
         console.print(note)
     else:
-        checkpoint = checkpoint or DEFAULT_CHECKPOINT
-        engine, payload = load_engine(checkpoint, device, threads, segment_ms, context_ms, batch)
-        input_spec = payload.get("input", {})
-        estimator = SNNEstimator(engine, input_spec, inputs.calibration, rate_hz, str(events))
+        estimator = _snn_estimator(
+            checkpoint, engine_options, inputs, rate_hz, str(events), clock
+        )
     result = stream_with_progress(
         console, "predict", events, estimator, out, sensor=inputs.sensor, start_s=start,
         end_s=end, gyro_path=gyro, gyro_rotation=inputs.gyro_rotation, plot=str(out) != STDOUT,
@@ -208,6 +214,7 @@ def _live_estimator(
     window_ms: float | None,
     checkpoint: Path | None,
     engine_options: tuple,
+    clock: str | None,
 ) -> GyroEstimator:
     """The estimator for a live source, ready before it connects (the sensor comes with the
     first batch)."""
@@ -215,5 +222,18 @@ def _live_estimator(
         from spikegyro.cmax.files import cmax_estimator_for_stream
 
         return cmax_estimator_for_stream(inputs.calibration, rate_hz, window_ms)
+    return _snn_estimator(checkpoint, engine_options, inputs, rate_hz, source, clock)
+
+
+def _snn_estimator(
+    checkpoint: Path | None,
+    engine_options: tuple,
+    inputs: StreamInputs,
+    rate_hz: float | None,
+    source: str,
+    clock: str | None,
+) -> SNNEstimator:
+    """The network (``--checkpoint``, default the shipped one) on its clock or ``--clock``."""
     engine, payload = load_engine(checkpoint or DEFAULT_CHECKPOINT, *engine_options)
-    return SNNEstimator(engine, payload.get("input", {}), inputs.calibration, rate_hz, source)
+    spec = spec_with_clock(payload.get("input", {}), clock)
+    return SNNEstimator(engine, spec, inputs.calibration, rate_hz, source)

@@ -184,10 +184,13 @@ def predict_live(
     ``notify`` gets the lines to tell the user while it runs."""
     check_span(start_s, end_s)
     confidence = bool(getattr(estimator, "confidence", False))
+    steps = bool(getattr(estimator, "clocked", False))
     imu = _ImuReference(gyro_rotation) if source.has_imu else None
     interrupted = False
     lag = LagMeter(notify)
-    with PredictionWriter(out, with_gyro=imu is not None, with_confidence=confidence) as writer:
+    with PredictionWriter(
+        out, with_gyro=imu is not None, with_confidence=confidence, with_steps=steps
+    ) as writer:
         live = _LiveRun(estimator, writer, lag, start_s, end_s)
         try:
             for item in source.batches():

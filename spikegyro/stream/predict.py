@@ -27,6 +27,7 @@ import numpy as np
 from spikegyro.errors import InputError, check_interrupt
 from spikegyro.evaluate import metrics
 from spikegyro.events.calib import Calibration, PinholeCamera
+from spikegyro.events.clock import Clock
 from spikegyro.events.core import EventArray, GyroTrace
 from spikegyro.events.io import (
     detect_format,
@@ -36,6 +37,7 @@ from spikegyro.events.io import (
     read_hdf5_attrs,
 )
 from spikegyro.events.windows import BIN_US
+from spikegyro.stream.clocked import ClockedPredictor, RowHolder
 from spikegyro.stream.estimator import (
     ILL_FEW_EVENTS,
     ILL_LITTLE_MOTION,
@@ -172,6 +174,32 @@ class StreamPredictor:
         return t_us, omega
 
 
+def spec_with_clock(input_spec: dict[str, Any], clock: str | None) -> dict[str, Any]:
+    """A checkpoint's input description with the network run on ``clock`` (``--clock``
+    text, :meth:`Clock.parse`) instead of its own; unchanged for None."""
+    if clock is None:
+        return dict(input_spec)
+    steps = Clock.parse(clock)
+    spec = {k: v for k, v in input_spec.items() if k != "clock"}
+    return spec if steps.is_paper else {**spec, "clock": steps.as_dict()}
+
+
+def clocked_predictor(
+    engine: StreamingSNN | PredictorFactory, input_spec: dict[str, Any], t0_us: int
+) -> Predictor | ClockedPredictor:
+    """A fresh predictor for a stream starting at ``t0_us``: 1 ms bins from there, or, for a
+    model on the event clock (``input_spec["clock"]``), its steps (real ends, rad/s)."""
+    target = model_camera(input_spec)
+    clock = Clock.from_dict(input_spec.get("clock"))
+    start = t0_us if clock.is_paper else 0
+    if isinstance(engine, StreamingSNN):
+        engine.reset()
+        inner: Predictor = StreamPredictor(engine, target.width, start)
+    else:
+        inner = engine(target, start)
+    return inner if clock.is_paper else ClockedPredictor(inner, clock, t0_us)
+
+
 class SNNEstimator:
     """The spiking network as a :class:`~spikegyro.stream.estimator.GyroEstimator`: one
     estimate per 1 ms bin, stamped at the bin's end (it uses the events before it).
@@ -212,8 +240,13 @@ class SNNEstimator:
         self._mapper: Callable[[EventArray], EventArray] | None = None
 
     @property
+    def clocked(self) -> bool:
+        """Whether the network runs on the event clock (rows hold its latest step)."""
+        return not Clock.from_dict(self.input_spec.get("clock")).is_paper
+
+    @property
     def steps(self) -> int:
-        """1 ms bins run so far."""
+        """Steps run so far."""
         return 0 if self._predictor is None else self._predictor.steps
 
     def update(self, events: EventArray) -> Estimates:
@@ -233,18 +266,20 @@ class SNNEstimator:
     def _start(self, events: EventArray) -> None:
         if self.t0_us is None:
             self.t0_us = int(events.t[0]) // BIN_US * BIN_US
-        target = model_camera(self.input_spec)
-        if isinstance(self.engine, StreamingSNN):
-            self.engine.reset()
-            self._predictor = StreamPredictor(self.engine, target.width, self.t0_us)
-        else:
-            self._predictor = self.engine(target, self.t0_us)
+        self._predictor = clocked_predictor(self.engine, self.input_spec, self.t0_us)
+        if isinstance(self._predictor, ClockedPredictor):
+            self._holder = RowHolder(self.t0_us, self.every * BIN_US)
         self.label = self._predictor.label
         self._mapper = event_mapper(
             events.sensor_size, self.input_spec, self.calibration, self.source
         )
 
     def _keep(self, t_us: np.ndarray, omega: np.ndarray) -> Estimates:
+        predictor = self._predictor
+        if isinstance(predictor, ClockedPredictor):
+            return self._holder.rows(
+                t_us, omega, predictor.step_us, predictor.counts, predictor.settled_us
+            )
         if self.every > 1:
             keep = (t_us - self.t0_us) % (self.every * BIN_US) == 0
             t_us, omega = t_us[keep], omega[keep]
@@ -531,7 +566,10 @@ def predict_stream(
     estimator.reset(t0)
     run = _StreamRun(gyro, t0)
     confidence = bool(getattr(estimator, "confidence", False))
-    with PredictionWriter(out_path, with_gyro=gyro is not None, with_confidence=confidence) as w:
+    steps = bool(getattr(estimator, "clocked", False))
+    with PredictionWriter(
+        out_path, with_gyro=gyro is not None, with_confidence=confidence, with_steps=steps
+    ) as w:
         last_t = t0
         for chunk in chunks:
             check_interrupt()

@@ -13,6 +13,10 @@ contrast over that of ω = 0; near 1: no structure found) and ``ill_posed`` (bit
 events, 2 too little motion to tell from none); as CSV columns after the others, as HDF5
 datasets of those names.
 
+The spiking network on the event clock writes a row per millisecond holding its latest step's
+estimate, with ``events`` (the step's events), ``step_ms`` (the step's length) and ``age_ms``
+(how long before the row that step ended): the estimate's latency.
+
 The path ``-`` writes the CSV to standard output instead, flushed after each block, for a
 program reading the estimates as they come.
 
@@ -38,6 +42,9 @@ from spikegyro.events.io import atomic_path
 
 _CSV_SUFFIXES = (".csv", ".txt")
 CONFIDENCE_COLUMNS = ("events", "window_ms", "contrast_gain", "ill_posed")
+STEP_COLUMNS = ("events", "step_ms", "age_ms")
+_FORMATS = {"events": "%d", "window_ms": "%.3f", "contrast_gain": "%.5f", "ill_posed": "%d",
+            "step_ms": "%.3f", "age_ms": "%.3f"}  # fmt: skip
 _H5_SUFFIXES = (".h5", ".hdf5")
 
 
@@ -63,11 +70,17 @@ class PredictionWriter:
     """
 
     def __init__(
-        self, path: str | os.PathLike, *, with_gyro: bool = False, with_confidence: bool = False
+        self,
+        path: str | os.PathLike,
+        *,
+        with_gyro: bool = False,
+        with_confidence: bool = False,
+        with_steps: bool = False,
     ) -> None:
         self.path = check_prediction_path(path)
         self.with_gyro = with_gyro
-        self.with_confidence = with_confidence
+        self.with_confidence = with_confidence or with_steps
+        self.columns = STEP_COLUMNS if with_steps else CONFIDENCE_COLUMNS if with_confidence else ()
         self.rows = 0
         self._stack = ExitStack()
         self._csv = None
@@ -90,7 +103,7 @@ class PredictionWriter:
                 )
             self._h5["omega"].attrs["units"] = "rad/s"
             self._h5["t_us"].attrs["units"] = "us"
-            for name in CONFIDENCE_COLUMNS if self.with_confidence else ():
+            for name in self.columns:
                 self._h5.create_dataset(
                     name, shape=(0,), maxshape=(None,), dtype=np.float32, chunks=(65536,)
                 )
@@ -101,7 +114,7 @@ class PredictionWriter:
 
     def _write_header(self) -> None:
         header = "t,wx,wy,wz" + (",gyro_wx,gyro_wy,gyro_wz,err" if self.with_gyro else "")
-        header += "".join(f",{c}" for c in CONFIDENCE_COLUMNS) if self.with_confidence else ""
+        header += "".join(f",{c}" for c in self.columns)
         self._csv.write(header + "\n")
         self._csv.flush()
 
@@ -113,21 +126,15 @@ class PredictionWriter:
         confidence: Any = None,
     ) -> None:
         """Add rows: times (µs), predicted ω (K, 3) rad/s and, if enabled, the gyro's ω (K, 3)
-        and the confidence (an ``Estimates``: events, window_us, contrast_gain, ill_posed)."""
+        and the confidence or steps (an ``Estimates``: events, window_us, delay_us,
+        contrast_gain, ill_posed)."""
         t_us = np.asarray(t_us, dtype=np.int64)
         omega = np.asarray(omega, dtype=np.float64).reshape(-1, 3)
         if self.with_gyro != (gyro_omega is not None):
             raise ValueError("gyro_omega must be given exactly when the writer has with_gyro")
         if self.with_confidence != (confidence is not None):
             raise ValueError("confidence must be given exactly when the writer has it")
-        extra = {}
-        if confidence is not None:
-            extra = {
-                "events": np.asarray(confidence.events, dtype=np.float64),
-                "window_ms": np.asarray(confidence.window_us, dtype=np.float64) / 1000.0,
-                "contrast_gain": np.asarray(confidence.contrast_gain, dtype=np.float64),
-                "ill_posed": np.asarray(confidence.ill_posed, dtype=np.float64),
-            }
+        extra = {} if confidence is None else _extra_columns(confidence, self.columns)
         if self._h5 is not None:
             blocks = {"t_us": t_us, "omega": omega, **extra}
             if gyro_omega is not None:
@@ -144,9 +151,8 @@ class PredictionWriter:
                 err = np.linalg.norm(omega - gyro_omega, axis=1)
                 columns += [gyro_omega, err[:, None]]
                 fmt += ["%.7g"] * 4
-            if extra:
-                columns += [extra[name][:, None] for name in CONFIDENCE_COLUMNS]
-                fmt += ["%d", "%.3f", "%.5f", "%d"]
+            columns += [extra[name][:, None] for name in self.columns]
+            fmt += [_FORMATS[name] for name in self.columns]
             np.savetxt(self._csv, np.hstack(columns), fmt=fmt, delimiter=",")
             self._csv.flush()
         self.rows += len(t_us)
@@ -158,6 +164,19 @@ class PredictionWriter:
         tb: TracebackType | None,
     ) -> None:
         self._stack.__exit__(exc_type, exc, tb)
+
+
+def _extra_columns(est: Any, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The columns ``names`` of an ``Estimates`` block (float64, times in ms)."""
+    every = {
+        "events": est.events,
+        "window_ms": np.asarray(est.window_us, dtype=np.float64) / 1000.0,
+        "step_ms": np.asarray(est.window_us, dtype=np.float64) / 1000.0,
+        "age_ms": np.asarray(est.delay_us, dtype=np.float64) / 1000.0,
+        "contrast_gain": est.contrast_gain,
+        "ill_posed": est.ill_posed,
+    }
+    return {name: np.asarray(every[name], dtype=np.float64) for name in names}
 
 
 def write_predictions(
@@ -184,7 +203,8 @@ def read_predictions(path: str | os.PathLike) -> dict[str, np.ndarray]:
     path = check_prediction_path(path)
     if not path.exists():
         raise InputError(f"{path}: no such prediction file.")
-    names = ("t_us", "omega", "gyro_omega", *CONFIDENCE_COLUMNS)
+    extra = tuple(dict.fromkeys(CONFIDENCE_COLUMNS + STEP_COLUMNS))
+    names = ("t_us", "omega", "gyro_omega", *extra)
     if path.suffix.lower() in _H5_SUFFIXES:
         with h5py.File(path, "r") as f:
             return {k: f[k][()] for k in names if k in f}
@@ -200,7 +220,7 @@ def read_predictions(path: str | os.PathLike) -> dict[str, np.ndarray]:
     if "gyro_wx" in header:
         i = header.index("gyro_wx")
         out["gyro_omega"] = table[:, i : i + 3]
-    for name in CONFIDENCE_COLUMNS:
+    for name in extra:
         if name in header:
             out[name] = table[:, header.index(name)]
     return out

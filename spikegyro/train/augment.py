@@ -77,7 +77,8 @@ def _mirrored(window: Window, events: EventArray, mirror: np.ndarray) -> Window:
 
 
 def reverse_time(window: Window) -> Window:
-    """Play the window backwards: times mirrored in the window, polarities swapped, ω -> -ω(T-τ)."""
+    """Play the window backwards: times mirrored in the window, polarities swapped, ω -> -ω(T-τ)
+    (on the event clock, step k's mean becomes step T-1-k's, negated)."""
     ev = window.events
     order = slice(None, None, -1)
     # Copies, not reversed views: every consumer (torch.from_numpy above all) gets plain arrays.
@@ -89,6 +90,14 @@ def reverse_time(window: Window) -> Window:
         t=(window.t_start_us + window.t_end_us - 1) - ev.t[order],
         p=(1 - ev.p[order]).astype(np.uint8),
     )
+    if window.step_us is not None:  # labels are means over steps: the steps reverse
+        return replace(
+            window,
+            events=events,
+            omega=-window.omega[::-1].copy(),
+            omega_start=-window.omega[-1].copy(),
+            step_us=window.step_us[::-1].copy(),
+        )
     labels = np.concatenate([window.omega_start[None], window.omega[:-1]])
     return replace(
         window,

@@ -128,6 +128,8 @@ OPTION_HELP: dict[str, str] = {
     "real_holdout": "Last share of each real recording, held out for validation.",
     "real_start": "Use each real recording from this many seconds after its first event.",
     "real_end": "... to this many seconds after it (default: its end).",
+    "clock": "SNN clock: paper (1 ms steps) or events:N[:MIN-MAX] (a step closes after N "
+    "events, within MIN-MAX ms; window lengths then count steps).",
 }
 """TrainConfig field -> help of its option ``--FIELD-NAME``, which overrides the preset's (or the
 resumed run's) value when given. The option's type is the field's: a bool is a ``--x/--no-x``

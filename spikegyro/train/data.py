@@ -28,7 +28,7 @@ from __future__ import annotations
 import functools
 import hashlib
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol, cast
 
@@ -38,7 +38,8 @@ from torch.utils.data import Dataset
 
 from spikegyro.errors import InputError
 from spikegyro.events import binning_torch
-from spikegyro.events.core import EventArray, Recording
+from spikegyro.events.clock import Clock, close_steps, mean_rates, step_begins, virtual_times
+from spikegyro.events.core import EventArray, GyroTrace, Recording
 from spikegyro.events.io import Hdf5Index, index_hdf5, read_hdf5_span, read_recording
 from spikegyro.events.representations import accumulated_frames, spike_tensor, voxel_grids
 
@@ -63,6 +64,10 @@ class Window:
         source: the sequence file (or a description of a simulated sequence).
         index: the window's position in its sequence (0..4 for the fixed test windows) or the
             sample number for random training windows.
+        step_us: on the event clock (:mod:`spikegyro.events.clock`), the real length of each
+            step, µs (T,); the events' times are then the network's own (step k is virtual
+            millisecond k) and ``omega`` is the mean ω over each step times its length over
+            1 ms, the rotation per virtual millisecond the network answers. None: 1 ms bins.
     """
 
     events: EventArray
@@ -71,6 +76,14 @@ class Window:
     omega_start: np.ndarray
     source: str = ""
     index: int = 0
+    step_us: np.ndarray | None = None
+
+    @property
+    def rates(self) -> np.ndarray:
+        """(T,) factor from the network's output (and ``omega``) to rad/s at each step."""
+        if self.step_us is None:
+            return np.ones(self.num_steps)
+        return BIN_US / np.maximum(np.asarray(self.step_us, np.float64), 1.0)
 
     @property
     def num_steps(self) -> int:
@@ -100,6 +113,8 @@ class InputSpec:
         output: "per_step" (ω every ms) or "window_mean" (mean ω per ``target_ms`` window).
         num_bins: voxel-grid time bins (voxel only).
         target_ms: length of the sub-windows an ANN predicts the mean over, milliseconds.
+        clock: the SNN's clock as :meth:`Clock.as_dict` gives it; None: the paper's 1 ms steps
+            (on the event clock ``window_ms`` counts steps).
     """
 
     representation: str = "spikes"
@@ -109,8 +124,19 @@ class InputSpec:
     output: str = "per_step"
     num_bins: int = 5
     target_ms: int = 20
+    clock: dict[str, int] | None = None
+
+    @property
+    def step_clock(self) -> Clock:
+        """The network's clock (:class:`~spikegyro.events.clock.Clock`)."""
+        return Clock.from_dict(self.clock)
 
     def __post_init__(self) -> None:
+        if not self.step_clock.is_paper and self.representation != "spikes":
+            raise InputError(
+                f"the event clock drives spiking networks; a {self.representation} input "
+                "keeps the paper's clock (drop --clock)."
+            )
         if self.representation not in REPRESENTATIONS:
             raise InputError(
                 f"input representation '{self.representation}': choose one of "
@@ -141,20 +167,31 @@ class InputSpec:
         window_ms: int,
         num_bins: int = 5,
         target_ms: int = 20,
+        clock: Clock | None = None,
     ) -> InputSpec:
         """The spec a model of this input kind is trained with (SNN: per step, ANN: means)."""
         output = "per_step" if representation == "spikes" else "window_mean"
-        return cls(representation, tuple(sensor), scale, window_ms, output, num_bins, target_ms)
+        steps = None if clock is None or clock.is_paper else clock.as_dict()
+        return cls(
+            representation, tuple(sensor), scale, window_ms, output, num_bins, target_ms, steps
+        )
 
     def as_dict(self) -> dict[str, Any]:
         out = asdict(self)
         out["sensor"] = list(self.sensor)
+        if out["clock"] is None:
+            del out["clock"]  # checkpoints of the paper's clock read as before
         return out
 
     @property
     def in_channels(self) -> int:
         """Input planes of an ANN for this representation."""
         return {"spikes": 2, "voxel": self.num_bins, "frames": 2}[self.representation]
+
+
+def with_clock(spec: InputSpec, clock: Clock) -> InputSpec:
+    """The spec with the network run on ``clock`` instead of its own."""
+    return replace(spec, clock=None if clock.is_paper else clock.as_dict())
 
 
 def as_input_spec(spec: InputSpec | dict[str, Any]) -> InputSpec:
@@ -218,6 +255,85 @@ def random_window(rec: Recording, window_ms: int, rng: np.random.Generator, **kw
     return window_at(rec, start, window_ms, **kw)
 
 
+def steps_window(
+    events: EventArray, gyro: GyroTrace, begin_us: int, ends_us: np.ndarray, cuts: np.ndarray,
+    *, source: str = "", index: int = 0,
+) -> Window:  # fmt: skip
+    """The window of event-clock steps ``ends_us`` from ``begin_us`` (µs; step k holds
+    ``events[cuts[k-1]:cuts[k]]``, :func:`~spikegyro.events.clock.close_steps`), in the
+    network's own time, labelled with each step's mean ω times its length over 1 ms."""
+    events = events[: int(cuts[-1])]
+    begins = step_begins(ends_us, begin_us)
+    step_us = (ends_us - begins).astype(np.int64)
+    labels = mean_rates(gyro.t, gyro.omega, begins, ends_us) * (step_us / BIN_US)[:, None]
+    virtual = replace(events, t=virtual_times(events.t, ends_us, cuts, begin_us))
+    return Window(
+        events=virtual, t_start_us=0, omega=labels.astype(np.float32),
+        omega_start=labels[0].astype(np.float32), source=source, index=index, step_us=step_us,
+    )  # fmt: skip
+
+
+def clocked_window(
+    read: Callable[[int, int], EventArray], gyro: GyroTrace, begin_us: int, known_us: int,
+    num_steps: int, clock: Clock, *, source: str = "", index: int = 0,
+) -> Window | None:  # fmt: skip
+    """``num_steps`` steps of the event clock from ``begin_us`` as a :func:`steps_window`;
+    ``read(a, b)`` gives the events in ``[a, b)`` µs, all known up to ``known_us``. None where
+    the sequence ends first. Reads spans that double until the steps close."""
+    length = max(num_steps * clock.min_step_us, 50 * BIN_US)
+    while True:
+        stop = min(begin_us + length, known_us + 1)
+        events = read(begin_us, stop)
+        ends, cuts = close_steps(events.t, begin_us, clock, known_us=stop - 1, max_steps=num_steps)
+        if len(ends) == num_steps:
+            return steps_window(events, gyro, begin_us, ends, cuts, source=source, index=index)
+        if stop > known_us:
+            return None
+        length *= 2
+
+
+def clocked_sequence_windows(
+    rec: Recording, num_steps: int, clock: Clock, source: str = ""
+) -> list[Window]:
+    """The consecutive windows of ``num_steps`` event-clock steps tiling a sequence from its
+    first ground-truth sample (the event clock's :func:`sequence_windows`)."""
+    t0, t1 = sequence_span_us(rec, source)
+    events = rec.events.slice_time(t0, t1 + 1)
+    ends, cuts = close_steps(events.t, t0, clock, known_us=t1)
+    windows = []
+    for i in range(len(ends) // num_steps):
+        k = slice(i * num_steps, (i + 1) * num_steps)
+        first = int(cuts[i * num_steps - 1]) if i else 0
+        begin = int(ends[i * num_steps - 1]) if i else t0
+        windows.append(steps_window(events[first:], rec.gyro, begin, ends[k], cuts[k] - first,
+                                    source=source, index=i))  # fmt: skip
+    return windows
+
+
+def draw_clocked(
+    sequence: Callable[[], tuple[Recording, Callable[[int, int], EventArray], str]],
+    num_steps: int, clock: Clock, rng: np.random.Generator, index: int, tries: int = 20,
+) -> Window:  # fmt: skip
+    """A window of ``num_steps`` event-clock steps from a random whole millisecond of a random
+    sequence (``sequence()`` -> (recording with its ground truth, ``read(a, b)``, name)),
+    drawing again where the sequence ends before the steps close."""
+    for _ in range(tries):
+        rec, read, source = sequence()
+        t0, t1 = sequence_span_us(rec, source)
+        slots = (t1 - t0 - num_steps * clock.min_step_us) // BIN_US
+        if slots < 0:
+            continue
+        start = t0 + int(rng.integers(0, slots + 1)) * BIN_US
+        window = clocked_window(read, rec.gyro, start, t1, num_steps, clock, source=source,
+                                index=index)  # fmt: skip
+        if window is not None:
+            return window
+    raise InputError(
+        f"{tries} random windows of {num_steps} steps ({clock.label}) ran past the end of their "
+        "sequences; simulate longer sequences (--duration-ms) or use fewer steps per window."
+    )
+
+
 def split_files(data_dir: str | Path, split: str) -> list[Path]:
     """Sorted sequence files ``data_dir/split/*.h5``; InputError if there are none."""
     if split not in SPLITS:
@@ -239,14 +355,21 @@ def sequence_index(path: str) -> Hdf5Index:
     return index_hdf5(path)
 
 
-def fixed_windows(data_dir: str | Path, split: str, window_ms: int = 100) -> list[Window]:
+def fixed_windows(
+    data_dir: str | Path, split: str, window_ms: int = 100, clock: Clock | None = None
+) -> list[Window]:
     """The evaluation windows of a split: each sequence cut into non-overlapping windows.
 
-    A 500 ms sequence gives five 100 ms windows, as in the official test set.
+    A 500 ms sequence gives five 100 ms windows, as in the official test set. On an event
+    ``clock`` the windows are of ``window_ms`` steps.
     """
     windows: list[Window] = []
     for path in split_files(data_dir, split):
-        windows.extend(sequence_windows(read_recording(path), window_ms, str(path)))
+        rec = read_recording(path)
+        if clock is None or clock.is_paper:
+            windows.extend(sequence_windows(rec, window_ms, str(path)))
+        else:
+            windows.extend(clocked_sequence_windows(rec, window_ms, clock, str(path)))
     return windows
 
 
@@ -487,14 +610,30 @@ class FileSource:
 
     files: tuple[str, ...]
     window_ms: int
+    clock: Clock = field(default_factory=Clock)
 
     @classmethod
-    def from_split(cls, data_dir: str | Path, split: str, window_ms: int) -> FileSource:
-        return cls(tuple(str(p) for p in split_files(data_dir, split)), window_ms)
+    def from_split(
+        cls, data_dir: str | Path, split: str, window_ms: int, clock: Clock | None = None
+    ) -> FileSource:
+        files = tuple(str(p) for p in split_files(data_dir, split))
+        return cls(files, window_ms, clock or Clock())
+
+    def _sequence(
+        self, rng: np.random.Generator
+    ) -> tuple[Recording, Callable[[int, int], EventArray], str]:
+        path = self.files[int(rng.integers(len(self.files)))]
+        file = sequence_index(path)
+        sequence = Recording(EventArray.empty(*file.sensor), file.gyro, file.attrs)
+        return sequence, functools.partial(read_hdf5_span, path, index=file), path
 
     def draw(self, rng: np.random.Generator, index: int) -> Window:
         """The window's events only are read from its file (the same window as
-        :func:`random_window` on the whole sequence gives)."""
+        :func:`random_window` on the whole sequence gives); on an event clock, a window of
+        ``window_ms`` steps (:func:`draw_clocked`)."""
+        if not self.clock.is_paper:
+            return draw_clocked(lambda: self._sequence(rng), self.window_ms, self.clock, rng,
+                                index)  # fmt: skip
         path = self.files[int(rng.integers(len(self.files)))]
         file = sequence_index(path)
         sequence = Recording(EventArray.empty(*file.sensor), file.gyro, file.attrs)
@@ -515,9 +654,13 @@ class OnlineSource:
 
     simulate: Callable[[int], Recording]
     window_ms: int
+    clock: Clock = field(default_factory=Clock)
 
     def draw(self, rng: np.random.Generator, index: int) -> Window:
         rec = self.simulate(index)
+        if not self.clock.is_paper:
+            named = (rec, rec.events.slice_time, f"online:{index}")
+            return draw_clocked(lambda: named, self.window_ms, self.clock, rng, index)
         return random_window(rec, self.window_ms, rng, source=f"online:{index}", index=index)
 
 

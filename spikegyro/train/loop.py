@@ -30,6 +30,7 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, Sampler
 
 from spikegyro.errors import InputError
+from spikegyro.events.clock import Clock
 from spikegyro.events.io import atomic_path
 from spikegyro.models.registry import build_model, save_checkpoint
 from spikegyro.train import distributed
@@ -41,6 +42,7 @@ from spikegyro.train.data import (
     OnlineSource,
     TrainingSamples,
     Window,
+    clocked_sequence_windows,
     device_batch,
     events_on_device,
     fixed_windows,
@@ -104,6 +106,7 @@ def input_spec_of(config: TrainConfig) -> InputSpec:
         window_ms=config.window_ms,
         num_bins=config.num_bins,
         target_ms=config.target_ms,
+        clock=Clock.parse(config.clock),
     )
 
 
@@ -147,10 +150,11 @@ def training_samples(
     """Random training windows of ``train_window_ms``, augmented, encoded as ``spec`` says
     (or, with ``events``, as event lists to be binned on the device)."""
     spec = replace(spec, window_ms=config.train_window_ms)
+    clock = Clock.parse(config.clock)
     if config.online:
-        source = OnlineSource(online_simulator(config), config.train_window_ms)
+        source = OnlineSource(online_simulator(config), config.train_window_ms, clock)
     else:
-        source = FileSource.from_split(config.data, "train", config.train_window_ms)
+        source = FileSource.from_split(config.data, "train", config.train_window_ms, clock)
     augment = AugmentConfig.of(config)
     return TrainingSamples(
         source, spec, seed=config.seed, augment=augment if augment.enabled else None, events=events
@@ -159,15 +163,19 @@ def training_samples(
 
 def validation_windows(config: TrainConfig) -> list[Window]:
     """Fixed validation windows: the ``val`` split, or simulated sequences in online mode."""
+    clock = Clock.parse(config.clock)
     if config.data:
-        windows = fixed_windows(config.data, "val", config.window_ms)
+        windows = fixed_windows(config.data, "val", config.window_ms, clock)
     else:
         simulate = online_simulator(config, split="val")
-        windows = [
-            w
-            for i in range(config.val_sequences)
-            for w in sequence_windows(simulate(i), config.window_ms, f"online-val:{i}")
-        ]
+        windows = []
+        for i in range(config.val_sequences):
+            rec, name = simulate(i), f"online-val:{i}"
+            windows += (
+                sequence_windows(rec, config.window_ms, name)
+                if clock.is_paper
+                else clocked_sequence_windows(rec, config.window_ms, clock, name)
+            )
     if config.val_windows and len(windows) > config.val_windows:
         # an even spread over sequences and positions, the same every time
         pick = np.linspace(0, len(windows) - 1, config.val_windows).round().astype(int)
@@ -216,7 +224,10 @@ def validate(
     was_training = model.training
     prediction = predict_windows(model, spec, windows, batch_size=config.batch_size, device=device)
     model.train(was_training)
-    truth = np.stack([w.omega for w in windows])
+    # on the event clock, outputs and labels are rotations per step: scored in rad/s
+    rates = np.stack([w.rates for w in windows])[:, :, None]
+    prediction = prediction * rates
+    truth = np.stack([w.omega for w in windows]) * rates
     return validation_metrics(prediction, truth, config.loss_start_step)
 
 

@@ -15,6 +15,7 @@ from typing import Any
 
 from spikegyro.checks import check_device
 from spikegyro.errors import InputError
+from spikegyro.events.clock import Clock
 from spikegyro.models.snn6 import SNN6_LAYERS
 from spikegyro.snn.functional import TAU_RHO
 from spikegyro.train.data import DATA_PATHS
@@ -114,6 +115,10 @@ class TrainConfig:
         real_holdout: the last share of each recording, held out to validate on by contrast.
         real_start, real_end: the part of each real recording used, seconds after its first
             event (None: to its last event).
+        clock: the SNN's clock: "paper" (fixed 1 ms steps) or an event clock "events:N" /
+            "events:N:MIN-MAX" (a step closes after N events, within MIN-MAX ms;
+            :mod:`spikegyro.events.clock`). On an event clock the window lengths and loss
+            starts count steps.
     """
 
     preset: str = "paper"
@@ -173,8 +178,10 @@ class TrainConfig:
     real_holdout: float = 0.2
     real_start: float = 0.0
     real_end: float | None = None
+    clock: str = "paper"
 
     def __post_init__(self) -> None:
+        Clock.parse(self.clock)  # a clear error for a malformed --clock
         if self.model not in MODEL_INPUTS:
             raise InputError(f"--model {self.model}: choose one of {', '.join(MODEL_INPUTS)}.")
         if not self.input:
