@@ -37,3 +37,13 @@ CLOCK = typer.Option(
     "events:N[:MIN-MAX] (a step closes after N events, within MIN-MAX ms).",
 )
 """``--clock``: the spiking network's clock (:meth:`spikegyro.events.clock.Clock.parse`)."""
+
+PIXELS = typer.Option(
+    None,
+    "--pixels",
+    help="With a calibration, the network reads the sensor's own pixels (sensor: a window around "
+    "the principal point, the focal length corrected at the output) or events reprojected onto "
+    "its camera (model). Default: the checkpoint's choice.",
+)
+"""``--pixels``: how a calibrated sensor's events reach the network
+(:data:`spikegyro.stream.predict.PIXELS`)."""

@@ -224,3 +224,45 @@ def test_clock_text_round_trips():
     assert Clock.parse("paper").is_paper
     assert Clock.parse("events:500:0.5-30") == Clock(500, 500, 30_000)
     assert Clock.from_dict(Clock(7, 2, 3).as_dict()) == Clock(7, 2, 3)
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_the_output_gain_undoes_the_focal_length_of_the_flow(axis):
+    """A sensor of other focal lengths moves edges by f·ω for tilt and pan and by ω·r for roll:
+    the flow the model's camera would see for ω is the sensor's flow for ω / gain."""
+    from spikegyro.events.calib import Calibration
+    from spikegyro.sim.camera import Camera
+    from spikegyro.stream.predict import model_camera, output_gain
+
+    spec = {**SPEC, "sensor": [240, 180], "pixels": "sensor"}
+    model = model_camera(spec)
+    # tilt and pan with non-square pixels; roll's ω·r holds for square ones
+    calib = Calibration(245.0, 300.0 if axis < 2 else 245.0, 121.0, 88.0)
+    sensor = Camera(240, 180, calib.fx, calib.fy, calib.cx, calib.cy)
+    ideal = Camera(240, 180, model.fx, model.fy, model.cx, model.cy)
+    omega = np.zeros(3)
+    omega[axis] = 0.5
+    gain = output_gain(spec, calib)
+    # at pixels the same distance from each principal point (the window centres it)
+    dx, dy = np.array([0.0, 40.0, -30.0]), np.array([0.0, -20.0, 35.0])
+    seen = sensor.flow(omega, calib.cx + dx, calib.cy + dy)
+    model_flow = ideal.flow(omega / gain, model.cx + dx, model.cy + dy)
+    if axis < 2:  # at the principal point, exactly; elsewhere to first order
+        assert np.allclose(seen[0], model_flow[0], rtol=1e-9, atol=1e-12)
+    else:
+        assert np.allclose(seen, model_flow, rtol=1e-9)
+    assert output_gain({**spec, "pixels": "model"}, calib).tolist() == [1.0, 1.0, 1.0]
+
+
+def test_the_sensor_window_centres_the_principal_point_without_resampling():
+    from spikegyro.events.calib import Calibration
+    from spikegyro.stream.predict import event_mapper
+
+    spec = {**SPEC, "sensor": [240, 180], "pixels": "sensor"}
+    events = EventArray.from_arrays([0, 5, 200, 239, 300], [0, 3, 100, 179, 250],
+                                    [1, 2, 3, 4, 5], [0, 1, 1, 0, 1], 346, 260)  # fmt: skip
+    mapped = event_mapper((346, 260), spec, Calibration(300.0, 300.0, 173.4, 129.6), "x")(events)
+    # principal point (173.4, 129.6) -> (120, 90): a shift of (53, 40) px, edges dropped
+    assert (mapped.width, mapped.height) == (240, 180)
+    assert mapped.x.tolist() == [147, 186] and mapped.y.tolist() == [60, 139]
+    assert mapped.t.tolist() == [3, 4] and mapped.p.tolist() == [1, 0]

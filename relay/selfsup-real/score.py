@@ -1,15 +1,20 @@
 """Score SNN checkpoints, CMax and omega = 0 on the real recordings of this folder's README.
 
-    python relay/selfsup-real/score.py REAL_DIR OUT_JSON NAME=CHECKPOINT [NAME=CHECKPOINT ...]
+    python relay/selfsup-real/score.py REAL_DIR OUT_JSON NAME=CHECKPOINT[,OPTION...] ...
+
+Options after the checkpoint go to ``spikegyro predict``, e.g. ``clock=CKPT,--pixels,sensor``
+or ``snn6-clock=snn6,--clock,events:1000``.
 
 REAL_DIR holds rueckauer2016_translBoxes/, ecd_windows/shapes_rotation/ and
 unlabeled/davis240_rotbars/. Every number comes from ``spikegyro predict`` (the command on
 PATH): per estimate from 50 ms after the scored span's start on, against the reference
 interpolated at the estimate's time, per-axis mean absolute error and mean Euclidean error,
-deg/s; ``zero_euclid`` is ω = 0's. References: translBoxes' gyro with its +3.5 deg/s tilt bias
-removed (the bias the camera shows at rest), the shapes window's motion capture, and offline
-CMax on rot_bars' held-out tail (from 5.43 s: the last 20 %, never trained on) and second half
-(from 3.39 s, what ``adapt`` on the first half is scored on). Results accumulate in OUT_JSON.
+deg/s; ``zero_euclid`` is ω = 0's; ``lag_ms`` is the shift of the reference that best
+correlates with the estimates (positive: the estimates lag). References: translBoxes' gyro
+with its +3.5 deg/s tilt bias removed (the bias the camera shows at rest), the shapes window's
+motion capture, and offline CMax on rot_bars' held-out tail (from 5.43 s: the last 20 %, never
+trained on) and second half (from 3.39 s, what ``adapt`` on the first half is scored on).
+Results accumulate in OUT_JSON.
 """
 
 from __future__ import annotations
@@ -74,14 +79,31 @@ def score(est: np.ndarray, ref: np.ndarray, t0: float) -> dict[str, float]:
     mae = np.abs(d).mean(axis=0)
     return dict(n=len(e), tilt=float(mae[0]), pan=float(mae[1]), roll=float(mae[2]),
                 euclid=float(np.linalg.norm(d, axis=1).mean()),
-                zero_euclid=float(np.degrees(np.linalg.norm(truth, axis=1)).mean()))  # fmt: skip
+                zero_euclid=float(np.degrees(np.linalg.norm(truth, axis=1)).mean()),
+                lag_ms=lag_ms(e, ref))  # fmt: skip
+
+
+def lag_ms(est: np.ndarray, ref: np.ndarray, max_ms: int = 400) -> float:
+    """The delay (ms, 1 ms steps) of the reference that correlates best with the estimates,
+    all axes together, each centred (positive: the estimates lag the reference)."""
+    grid = np.arange(est[0, 0], est[-1, 0], 1e-3)
+    if len(grid) < 3 * max_ms:
+        return float("nan")
+    a = np.stack([np.interp(grid, est[:, 0], est[:, k]) for k in (1, 2, 3)], axis=1)
+    a -= a.mean(axis=0)
+    scores = []
+    for lag in range(-max_ms, max_ms + 1):
+        b = np.stack([np.interp(grid - lag * 1e-3, ref[:, 0], ref[:, k]) for k in (1, 2, 3)], 1)
+        b -= b.mean(axis=0)
+        scores.append(float((a * b).sum() / (np.linalg.norm(a) * np.linalg.norm(b) + 1e-12)))
+    return float(np.argmax(scores) - max_ms)
 
 
 def main() -> None:
     if len(sys.argv) < 4:
         sys.exit(__doc__.strip().splitlines()[2].strip())
     real, out_json = Path(sys.argv[1]), Path(sys.argv[2])
-    checkpoints = dict(a.split("=", 1) for a in sys.argv[3:])
+    checkpoints = {k: v.split(",") for k, v in (a.split("=", 1) for a in sys.argv[3:])}
     work = out_json.parent / "score_work"
     work.mkdir(parents=True, exist_ok=True)
     results = json.loads(out_json.read_text()) if out_json.exists() else {}
@@ -90,7 +112,8 @@ def main() -> None:
         offline = predict(rec, ["--method", "cmax", "--offline"], work / f"{name}-cmax.csv")
         ref = reference(rec, offline)
         methods = {
-            f"snn:{k}": ["--method", "snn", "--checkpoint", v] for k, v in checkpoints.items()
+            f"snn:{k}": ["--method", "snn", "--checkpoint", v[0], *v[1:]]
+            for k, v in checkpoints.items()
         }
         if rec["ref"] is not None:
             results.setdefault(name, {})["cmax-offline"] = score(offline, ref, t0)

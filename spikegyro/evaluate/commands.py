@@ -143,6 +143,7 @@ def evaluate_real(
     width: int = options.WIDTH,
     height: int = options.HEIGHT,
     clock: str = options.CLOCK,
+    pixels: str = options.PIXELS,
 ) -> None:
     """Score SNN-6, CMax and the mean predictor against a gyro on a real recording."""
     config = RealEvalConfig(
@@ -157,6 +158,7 @@ def evaluate_real(
         offset=replace(OffsetConfig(), max_offset_ms=max_offset_ms),
         speed_bins=parse_speed_bins(speed_bins),
         clock=clock,
+        pixels=pixels,
     )
     run_real_evaluation(
         recording,

@@ -82,7 +82,8 @@ from spikegyro.stream.predict import (
     WARMUP_STEPS,
     clocked_predictor,
     event_mapper,
-    spec_with_clock,
+    output_gain,
+    spec_with,
 )
 
 REAL_METRICS_FORMAT = "spikegyro-real-metrics/1"
@@ -123,6 +124,7 @@ class RealEvalConfig:
     offset: OffsetConfig = OffsetConfig()
     speed_bins: tuple[float, ...] = SPEED_BIN_EDGES_DEG_S  # deg/s
     clock: str | None = None  # the SNN on this clock instead of its own (Clock.parse)
+    pixels: str | None = None  # sensor or model pixels instead of the checkpoint's choice
 
 
 def parse_gyro_offset(text: str) -> float | None:
@@ -148,11 +150,11 @@ def _snn_per_ms(
     steps: int,
     source: str,
     progress: Any,
-    clock: str | None = None,
+    network: tuple[str | None, str | None] = (None, None),
 ) -> tuple[np.ndarray, dict[str, Any]]:
     # the exact stream; networks it cannot run (grid readout, log-polar input) go batched
     engine, payload = load_engine(checkpoint)
-    spec = spec_with_clock(payload.get("input", {}), clock)
+    spec = spec_with(payload.get("input", {}), *network)
     payload = {**payload, "input": spec}
     mapper = event_mapper(events.sensor_size, spec, calibration, source)
     predictor = clocked_predictor(engine, spec, t0)
@@ -170,7 +172,7 @@ def _snn_per_ms(
         omega = hold_on_grid(np.concatenate(stamps), omega, grid)
     if omega.shape[0] != steps:
         raise RuntimeError(f"SNN gave {omega.shape[0]} steps, expected {steps}")
-    return omega, payload
+    return omega * output_gain(spec, calibration), payload
 
 
 def _cmax_windows(
@@ -468,7 +470,7 @@ def predict_real(plan: RealPlan, console: Console) -> RealPredictions:
             plan.steps,
             str(plan.inputs.recording),
             tracker("SNN-6"),
-            plan.config.clock,
+            (plan.config.clock, plan.config.pixels),
         )
         offline = estimate_offline(events, camera, t0_us=t0, progress=tracker("CMax, offline"))
         cmax_ms = cmax_series.per_ms(offline.t_us, offline.omega, plan.ends)

@@ -27,7 +27,7 @@ from spikegyro.stream.predict import (
     SNN_REAL_DATA_NOTE,
     SNNEstimator,
     is_simulated,
-    spec_with_clock,
+    spec_with,
     summary_lines,
 )
 from spikegyro.stream.writer import STDOUT, check_prediction_path
@@ -128,6 +128,7 @@ def predict(
     context_ms: int = CONTEXT_MS,
     batch: int = BATCH,
     clock: str = options.CLOCK,
+    pixels: str = options.PIXELS,
 ) -> None:
     """Estimate ω = (ω_x, ω_y, ω_z) in rad/s, streaming, with a real-time-factor bar.
 
@@ -149,9 +150,10 @@ def predict(
     console = Console(stderr=True)
     print_lines(console, inputs.notes)
     engine_options = (device, threads, segment_ms, context_ms, batch)
+    network = (clock, pixels)
     if live:  # the estimator first: the stream does not wait for it
         estimator = _live_estimator(
-            method, events, inputs, rate_hz, window_ms, checkpoint, engine_options, clock
+            method, events, inputs, rate_hz, window_ms, checkpoint, engine_options, network
         )
         source = open_source(events)
         if method == "cmax":
@@ -176,7 +178,7 @@ def predict(
         console.print(note)
     else:
         estimator = _snn_estimator(
-            checkpoint, engine_options, inputs, rate_hz, str(events), clock
+            checkpoint, engine_options, inputs, rate_hz, str(events), network
         )
     result = stream_with_progress(
         console, "predict", events, estimator, out, sensor=inputs.sensor, start_s=start,
@@ -214,7 +216,7 @@ def _live_estimator(
     window_ms: float | None,
     checkpoint: Path | None,
     engine_options: tuple,
-    clock: str | None,
+    network: tuple[str | None, str | None],
 ) -> GyroEstimator:
     """The estimator for a live source, ready before it connects (the sensor comes with the
     first batch)."""
@@ -222,7 +224,7 @@ def _live_estimator(
         from spikegyro.cmax.files import cmax_estimator_for_stream
 
         return cmax_estimator_for_stream(inputs.calibration, rate_hz, window_ms)
-    return _snn_estimator(checkpoint, engine_options, inputs, rate_hz, source, clock)
+    return _snn_estimator(checkpoint, engine_options, inputs, rate_hz, source, network)
 
 
 def _snn_estimator(
@@ -231,9 +233,10 @@ def _snn_estimator(
     inputs: StreamInputs,
     rate_hz: float | None,
     source: str,
-    clock: str | None,
+    network: tuple[str | None, str | None],
 ) -> SNNEstimator:
-    """The network (``--checkpoint``, default the shipped one) on its clock or ``--clock``."""
+    """The network (``--checkpoint``, default the shipped one) with its clock and pixels, or
+    those of ``network`` (``--clock``, ``--pixels``)."""
     engine, payload = load_engine(checkpoint or DEFAULT_CHECKPOINT, *engine_options)
-    spec = spec_with_clock(payload.get("input", {}), clock)
+    spec = spec_with(payload.get("input", {}), *network)
     return SNNEstimator(engine, spec, inputs.calibration, rate_hz, source)

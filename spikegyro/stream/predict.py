@@ -90,10 +90,14 @@ def event_mapper(
     """A function taking sensor events to events on the model's input grid.
 
     With a calibration, every sensor pixel is undistorted and reprojected onto the model's camera
-    (lookup table). Without one the sensor must be the model's training sensor; the events are
-    then resized by the model's ``scale`` exactly as in training.
+    (lookup table), unless the model reads the sensor's own pixels (``input_spec["pixels"]``
+    is ``"sensor"``: :func:`sensor_window`). Without one the sensor must be the model's
+    training sensor; the events are then resized by the model's ``scale`` exactly as in
+    training.
     """
     target = model_camera(input_spec)
+    if calibration is not None and input_spec.get("pixels") == "sensor":
+        return sensor_window(sensor, target, calibration)
     if calibration is not None:
         calibration.lookup_table(sensor[0], sensor[1], target)  # build (and check) it once
         return lambda ev: calibration.map_events(ev, target)
@@ -106,6 +110,37 @@ def event_mapper(
         )
     scale = float(input_spec.get("scale", 1.0))
     return (lambda ev: ev) if scale == 1.0 else (lambda ev: ev.rescale(scale))
+
+
+def sensor_window(
+    sensor: tuple[int, int], target: PinholeCamera, calibration: Calibration
+) -> Callable[[EventArray], EventArray]:
+    """The sensor's own pixels, not resampled: a window of the model's size whose centre is the
+    principal point (cropped, or padded where the sensor is smaller; lens distortion is kept).
+    Rounding events onto another grid costs accuracy; :func:`output_gain` corrects the focal
+    length at the output instead."""
+    dx = round(calibration.cx - target.cx)
+    dy = round(calibration.cy - target.cy)
+    width, height = target.width, target.height
+
+    def window(ev: EventArray) -> EventArray:
+        x, y = ev.x.astype(np.int64) - dx, ev.y.astype(np.int64) - dy
+        keep = (x >= 0) & (x < width) & (y >= 0) & (y < height)
+        return EventArray(x[keep].astype(np.int16), y[keep].astype(np.int16), ev.t[keep],
+                          ev.p[keep], width, height)  # fmt: skip
+
+    del sensor  # any size: the window is cut around the principal point
+    return window
+
+
+def output_gain(input_spec: dict[str, Any], calibration: Calibration | None) -> np.ndarray:
+    """(3,) factor on the network's ω for a model reading the sensor's own pixels: a tilt or pan
+    moves an edge by f·ω pixels, so a sensor of focal length f reads as f / f_model times the
+    rate (roll, whose flow is ω·r, needs none); ones otherwise."""
+    if calibration is None or input_spec.get("pixels") != "sensor":
+        return np.ones(3)
+    target = model_camera(input_spec)
+    return np.array([target.fy / calibration.fy, target.fx / calibration.fx, 1.0])
 
 
 class Predictor(Protocol):
@@ -174,13 +209,27 @@ class StreamPredictor:
         return t_us, omega
 
 
-def spec_with_clock(input_spec: dict[str, Any], clock: str | None) -> dict[str, Any]:
-    """A checkpoint's input description with the network run on ``clock`` (``--clock``
-    text, :meth:`Clock.parse`) instead of its own; unchanged for None."""
+PIXELS = ("sensor", "model")
+"""How a calibrated sensor's events reach the network: its own pixels (a window around the
+principal point, the focal length corrected at the output) or reprojected onto the model's
+camera."""
+
+
+def spec_with(
+    input_spec: dict[str, Any], clock: str | None = None, pixels: str | None = None
+) -> dict[str, Any]:
+    """A checkpoint's input description with the network run on ``clock`` (``--clock`` text,
+    :meth:`Clock.parse`) and reading ``pixels`` (:data:`PIXELS`) instead of its own; None
+    keeps the checkpoint's."""
+    spec = dict(input_spec)
+    if pixels is not None:
+        if pixels not in PIXELS:
+            raise InputError(f"--pixels {pixels}: choose 'sensor' or 'model'.")
+        spec["pixels"] = pixels
     if clock is None:
-        return dict(input_spec)
+        return spec
     steps = Clock.parse(clock)
-    spec = {k: v for k, v in input_spec.items() if k != "clock"}
+    spec = {k: v for k, v in spec.items() if k != "clock"}
     return spec if steps.is_paper else {**spec, "clock": steps.as_dict()}
 
 
@@ -273,8 +322,10 @@ class SNNEstimator:
         self._mapper = event_mapper(
             events.sensor_size, self.input_spec, self.calibration, self.source
         )
+        self._gain = output_gain(self.input_spec, self.calibration)
 
     def _keep(self, t_us: np.ndarray, omega: np.ndarray) -> Estimates:
+        omega = omega * self._gain
         predictor = self._predictor
         if isinstance(predictor, ClockedPredictor):
             return self._holder.rows(
