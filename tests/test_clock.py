@@ -266,3 +266,8 @@ def test_the_sensor_window_centres_the_principal_point_without_resampling():
     assert (mapped.width, mapped.height) == (240, 180)
     assert mapped.x.tolist() == [147, 186] and mapped.y.tolist() == [60, 139]
     assert mapped.t.tolist() == [3, 4] and mapped.p.tolist() == [1, 0]
+
+
+def test_clock_text_is_what_parse_reads():
+    for clock in (Clock(), Clock(500, 1000, 20_000), Clock(3, 250, 1500)):
+        assert Clock.parse(clock.text) == clock

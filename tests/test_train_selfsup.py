@@ -212,3 +212,30 @@ def test_adapt_trains_on_a_real_recording_and_writes_the_best_weights(simulated,
     assert adapted.result.steps == 4
     assert adapted.gain_end >= adapted.gain_start
     assert read_checkpoint(out)["model"] == "snn6"
+
+
+def test_real_windows_on_the_event_clock_score_each_step_where_it_ends(simulated, tmp_path):
+    """On the event clock a real window holds whole steps, each scored sub-window ends where
+    its step does and carries the factor to rad/s: the true ω, read back through that factor
+    from the network's units, sharpens the events as it does on the paper's clock."""
+    from spikegyro.events.clock import Clock
+
+    events, _ = simulated
+    rec = _text_recording(tmp_path / "rec.txt", events)
+    config = ContrastLossConfig(from_step=15, span_ms=30.0)
+    recordings = load_recordings([rec], ["200,200,120,90"], 40, 0.5, config, progress=False)
+    clock = Clock(len(events) // 200, 200, 10_000)  # steps of about 0.6 ms
+    spec = InputSpec(window_ms=20, clock=clock.as_dict())
+    windows = RealWindows(recordings, spec, config, seed=3)
+    train_end = recordings[0].train_span[1] + 20_000
+    for window, subs in windows.draw(5, 3):
+        assert window.num_steps == 20 and np.isnan(window.omega).all()
+        ends = window.t_start_us + np.cumsum(window.step_us)
+        assert ends[-1] <= train_end and window.events.t.max() < 20_000  # the network's time
+        assert [s.step for s in subs] == [19]
+        sub = subs[0]
+        assert sub.rate == pytest.approx(1000.0 / window.step_us[19])
+        # the network's units: rotation per virtual ms; the true ω there is OMEGA / rate
+        truth = torch.from_numpy(np.tile(OMEGA / sub.rate, (20, 1)).T.copy())
+        assert float(window_loss(truth, subs, config, "contrast")) < -0.2
+        assert float(window_loss(truth * 0, subs, config, "contrast")) == pytest.approx(0.0)

@@ -73,6 +73,14 @@ class Clock:
             f"({self.min_step_us / 1000:g}-{self.max_step_us / 1000:g} ms)"
         )
 
+    @property
+    def text(self) -> str:
+        """The clock as :meth:`parse` reads it."""
+        if self.is_paper:
+            return "paper"
+        bounds = f"{self.min_step_us / 1000:g}-{self.max_step_us / 1000:g}"
+        return f"events:{self.events_per_step}:{bounds}"
+
     def as_dict(self) -> dict[str, int]:
         return {
             "events_per_step": self.events_per_step,

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from spikegyro.errors import InputError
+from spikegyro.events.clock import Clock
 from spikegyro.events.io import atomic_path
 from spikegyro.models.registry import read_checkpoint
 from spikegyro.pretrained import resolve_checkpoint
@@ -74,7 +75,8 @@ def adapt_config(settings: AdaptSettings) -> TrainConfig:
     if not settings.max_minutes > 0:
         raise InputError(f"--max-minutes {settings.max_minutes}: must be > 0.")
     init = resolve_checkpoint(settings.checkpoint)
-    model = read_checkpoint(init, "--checkpoint")["model"]
+    payload = read_checkpoint(init, "--checkpoint")
+    model = payload["model"]
     if model not in SNN_MODELS:
         raise InputError(
             f"--checkpoint {settings.checkpoint}: a {model} network; adapt fine-tunes the "
@@ -103,6 +105,8 @@ def adapt_config(settings: AdaptSettings) -> TrainConfig:
             "time_reverse": 0.0,
             "hflip": 0.0,
             "vflip": 0.0,
+            # the network keeps its clock (the event clock's windows count steps)
+            "clock": Clock.from_dict(payload.get("input", {}).get("clock")).text,
         },
     )
 

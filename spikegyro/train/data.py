@@ -256,16 +256,20 @@ def random_window(rec: Recording, window_ms: int, rng: np.random.Generator, **kw
 
 
 def steps_window(
-    events: EventArray, gyro: GyroTrace, begin_us: int, ends_us: np.ndarray, cuts: np.ndarray,
-    *, source: str = "", index: int = 0,
+    events: EventArray, gyro: GyroTrace | None, begin_us: int, ends_us: np.ndarray,
+    cuts: np.ndarray, *, source: str = "", index: int = 0,
 ) -> Window:  # fmt: skip
     """The window of event-clock steps ``ends_us`` from ``begin_us`` (µs; step k holds
     ``events[cuts[k-1]:cuts[k]]``, :func:`~spikegyro.events.clock.close_steps`), in the
-    network's own time, labelled with each step's mean ω times its length over 1 ms."""
+    network's own time, labelled with each step's mean ω times its length over 1 ms (NaN
+    without a ``gyro``)."""
     events = events[: int(cuts[-1])]
     begins = step_begins(ends_us, begin_us)
     step_us = (ends_us - begins).astype(np.int64)
-    labels = mean_rates(gyro.t, gyro.omega, begins, ends_us) * (step_us / BIN_US)[:, None]
+    if gyro is None:
+        labels = np.full((len(ends_us), 3), np.nan)
+    else:
+        labels = mean_rates(gyro.t, gyro.omega, begins, ends_us) * (step_us / BIN_US)[:, None]
     virtual = replace(events, t=virtual_times(events.t, ends_us, cuts, begin_us))
     return Window(
         events=virtual, t_start_us=0, omega=labels.astype(np.float32),
@@ -274,7 +278,7 @@ def steps_window(
 
 
 def clocked_window(
-    read: Callable[[int, int], EventArray], gyro: GyroTrace, begin_us: int, known_us: int,
+    read: Callable[[int, int], EventArray], gyro: GyroTrace | None, begin_us: int, known_us: int,
     num_steps: int, clock: Clock, *, source: str = "", index: int = 0,
 ) -> Window | None:  # fmt: skip
     """``num_steps`` steps of the event clock from ``begin_us`` as a :func:`steps_window`;

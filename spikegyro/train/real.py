@@ -25,7 +25,15 @@ from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration, load_calibration, resolve_calibration
 from spikegyro.events.core import EventArray
 from spikegyro.events.io import read_recording
-from spikegyro.train.data import BIN_US, EventBatch, InputSpec, Window, encode_window, window_events
+from spikegyro.train.data import (
+    BIN_US,
+    EventBatch,
+    InputSpec,
+    Window,
+    clocked_window,
+    encode_window,
+    window_events,
+)
 from spikegyro.train.infer import predict_windows
 from spikegyro.train.selfsup import (
     ContrastLossConfig,
@@ -188,37 +196,60 @@ class RealWindows:
         self.loss = loss
         self.seed = seed
 
-    def _scored(self, index: int, start: int) -> tuple[Window, list[SubWindow]]:
-        rec = self.recordings[index]
-        window = unlabeled_window(rec.events, start, self.spec.window_ms, rec.name)
+    def _scored(
+        self, index: int, start: int, known_us: int
+    ) -> tuple[Window, list[SubWindow]] | None:
+        """The window from ``start`` (µs) and its scored sub-windows, each ending where its step
+        ends; on the event clock None where the steps run past ``known_us``."""
+        rec, steps, clock = self.recordings[index], self.spec.window_ms, self.spec.step_clock
+        if clock.is_paper:
+            window = unlabeled_window(rec.events, start, steps, rec.name)
+            ends = start + BIN_US * np.arange(1, steps + 1)
+        else:
+            found = clocked_window(rec.events.slice_time, None, start, known_us, steps, clock,
+                                   source=rec.name)  # fmt: skip
+            if found is None:
+                return None
+            window, ends = found, start + np.cumsum(found.step_us)
         subs = []
-        for step in self.loss.steps(self.spec.window_ms):
-            t_ref = start + (step + 1) * BIN_US
-            sub = scored_sub_window(rec.events, t_ref, step, rec.camera, rec.teacher, self.loss)
+        for step in self.loss.steps(steps):
+            sub = scored_sub_window(rec.events, int(ends[step]), step, rec.camera, rec.teacher,
+                                    self.loss, float(window.rates[step]))  # fmt: skip
             if sub is not None:
                 subs.append(sub)
         return window, subs
 
     def draw(self, step: int, count: int) -> list[tuple[Window, list[SubWindow]]]:
         """``count`` training windows of optimizer step ``step`` (a pure function of the seed
-        and the step): recordings drawn in proportion to their training span."""
+        and the step): recordings drawn in proportion to their training span (on the event
+        clock, a window whose steps would reach the held-out part is drawn again)."""
         rng = np.random.default_rng([self.seed, step, 7])
         spans = np.array([r.train_span[1] - r.train_span[0] + 1 for r in self.recordings], float)
-        picks = rng.choice(len(spans), size=count, p=spans / spans.sum())
         out = []
-        for index in picks:
+        for _ in range(20 * count):
+            if len(out) == count:
+                return out
+            index = int(rng.choice(len(spans), p=spans / spans.sum()))
             lo, hi = self.recordings[index].train_span
             start = lo + int(rng.integers(0, (hi - lo) // GRID_US + 1)) * GRID_US
-            out.append(self._scored(int(index), start))
-        return out
+            scored = self._scored(index, start, hi + self.spec.window_ms * BIN_US)
+            if scored is not None:
+                out.append(scored)
+        raise InputError(
+            f"real windows of {self.spec.window_ms} steps ({self.spec.step_clock.label}) run "
+            "past the recordings' training spans; use fewer steps per window."
+        )
 
     def validation(self) -> list[tuple[Window, list[SubWindow]]]:
-        """The held-out windows, tiling each recording's held-out span."""
+        """The held-out windows, tiling each recording's held-out span (from each start on
+        the paper's clock; on the event clock those whose steps end in the recording)."""
         out = []
         step_us = self.spec.window_ms * BIN_US
         for index, rec in enumerate(self.recordings):
             lo, hi = rec.val_span
-            out += [self._scored(index, start) for start in range(lo, hi + 1, step_us)]
+            end = int(rec.events.t[-1])
+            scored = [self._scored(index, start, end) for start in range(lo, hi + 1, step_us)]
+            out += [s for s in scored if s is not None]
         return out
 
 

@@ -82,13 +82,15 @@ class ContrastLossConfig:
 @dataclass(frozen=True)
 class SubWindow:
     """One reference step of a window: its events as rays, their contrast at ω = 0, the
-    teacher's estimate (rad/s) and gain."""
+    teacher's estimate (rad/s) and gain, and the factor from the network's output at the step
+    to rad/s (1 ms over the step's length on the event clock; 1 on the paper's)."""
 
     step: int
     problem: Problem
     c0: float
     teacher: np.ndarray
     teacher_gain: float
+    rate: float = 1.0
 
 
 def sub_problem(
@@ -154,8 +156,9 @@ def window_loss(
     if kind == "teacher":
         target = torch.from_numpy(np.stack([s.teacher for s in used])).to(omega)
         steps = torch.tensor([s.step for s in used])
-        return (omega[:, steps].T - target).pow(2).sum(dim=1).sqrt().mean()
-    terms = [gain_loss(omega[:, s.step], s, config.sigma_px) for s in used]
+        rates = torch.tensor([s.rate for s in used]).to(omega)
+        return (omega[:, steps].T * rates[:, None] - target).pow(2).sum(dim=1).sqrt().mean()
+    terms = [gain_loss(omega[:, s.step] * s.rate, s, config.sigma_px) for s in used]
     return torch.stack(terms).mean()
 
 
@@ -223,9 +226,10 @@ def scored_sub_window(
     camera: Intrinsics,
     teacher: TeacherSeries,
     config: ContrastLossConfig,
+    rate: float = 1.0,
 ) -> SubWindow | None:
     """The sub-window of ``events`` ending at ``t_ref_us`` (µs) with the teacher's estimate;
-    None when it has too few events or a flat image."""
+    None when it has too few events or a flat image. ``rate``: see :class:`SubWindow`."""
     i = teacher.index(t_ref_us)
     rng = np.random.default_rng([t_ref_us, 5])
     problem = sub_problem(events, t_ref_us, camera, config, rng, int(teacher.span_us[i]))
@@ -234,14 +238,15 @@ def scored_sub_window(
     c0 = problem.contrast(np.zeros(3), 1, config.sigma_px)[0]
     if not c0 > 0:
         return None
-    return SubWindow(step, problem, float(c0), teacher.omega[i], float(teacher.gain[i]))
+    return SubWindow(step, problem, float(c0), teacher.omega[i], float(teacher.gain[i]), rate)
 
 
 def gain_of_prediction(omega: np.ndarray, subs: list[SubWindow], sigma_px: float) -> float:
     """Mean contrast gain G of per-step estimates ``omega`` (T, 3) rad/s over ``subs``
     (NaN without any): the validation score on real windows (1 = no better than ω = 0)."""
     gains = [
-        sub.problem.contrast(omega[sub.step].astype(np.float64), 1, sigma_px)[0] / sub.c0
+        sub.problem.contrast(omega[sub.step].astype(np.float64) * sub.rate, 1, sigma_px)[0]
+        / sub.c0
         for sub in subs
     ]
     return float(np.mean(gains)) if gains else math.nan
