@@ -234,7 +234,7 @@ def test_real_windows_on_the_event_clock_score_each_step_where_it_ends(simulated
         assert ends[-1] <= train_end and window.events.t.max() < 20_000  # the network's time
         assert [s.step for s in subs] == [19]
         sub = subs[0]
-        assert sub.rate == pytest.approx(1000.0 / window.step_us[19])
+        assert sub.rate == pytest.approx(np.full(3, 1000.0 / window.step_us[19]))
         # the network's units: rotation per virtual ms; the true ω there is OMEGA / rate
         truth = torch.from_numpy(np.tile(OMEGA / sub.rate, (20, 1)).T.copy())
         assert float(window_loss(truth, subs, config, "contrast")) < -0.2

@@ -139,8 +139,14 @@ def output_gain(input_spec: dict[str, Any], calibration: Calibration | None) -> 
     rate (roll, whose flow is ω·r, needs none); ones otherwise."""
     if calibration is None or input_spec.get("pixels") != "sensor":
         return np.ones(3)
+    return focal_gain(input_spec, calibration)
+
+
+def focal_gain(input_spec: dict[str, Any], camera: Any) -> np.ndarray:
+    """(3,) ``[f_model / f_y, f_model / f_x, 1]``: from the ω a network reads in ``camera``'s own
+    pixels (``fx``, ``fy``, pixels) to the true ω (see :func:`output_gain`)."""
     target = model_camera(input_spec)
-    return np.array([target.fy / calibration.fy, target.fx / calibration.fx, 1.0])
+    return np.array([target.fy / camera.fy, target.fx / camera.fx, 1.0])
 
 
 class Predictor(Protocol):

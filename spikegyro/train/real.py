@@ -25,6 +25,7 @@ from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration, load_calibration, resolve_calibration
 from spikegyro.events.core import EventArray
 from spikegyro.events.io import read_recording
+from spikegyro.stream.predict import focal_gain
 from spikegyro.train.data import (
     BIN_US,
     EventBatch,
@@ -211,10 +212,12 @@ class RealWindows:
             if found is None:
                 return None
             window, ends = found, start + np.cumsum(found.step_us)
+        # the sensor's own pixels: tilt and pan read through the focal length (--pixels sensor)
+        gain = focal_gain(self.spec.as_dict(), rec.camera)
         subs = []
         for step in self.loss.steps(steps):
             sub = scored_sub_window(rec.events, int(ends[step]), step, rec.camera, rec.teacher,
-                                    self.loss, float(window.rates[step]))  # fmt: skip
+                                    self.loss, window.rates[step] * gain)  # fmt: skip
             if sub is not None:
                 subs.append(sub)
         return window, subs

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -82,15 +82,16 @@ class ContrastLossConfig:
 @dataclass(frozen=True)
 class SubWindow:
     """One reference step of a window: its events as rays, their contrast at ω = 0, the
-    teacher's estimate (rad/s) and gain, and the factor from the network's output at the step
-    to rad/s (1 ms over the step's length on the event clock; 1 on the paper's)."""
+    teacher's estimate (rad/s) and gain, and the factor (3,) from the network's output at the
+    step to rad/s: 1 ms over the step's length on the event clock (1 on the paper's), times the
+    focal-length gain of a network reading the sensor's own pixels (tilt and pan f_model / f)."""
 
     step: int
     problem: Problem
     c0: float
     teacher: np.ndarray
     teacher_gain: float
-    rate: float = 1.0
+    rate: np.ndarray = field(default_factory=lambda: np.ones(3))
 
 
 def sub_problem(
@@ -156,9 +157,12 @@ def window_loss(
     if kind == "teacher":
         target = torch.from_numpy(np.stack([s.teacher for s in used])).to(omega)
         steps = torch.tensor([s.step for s in used])
-        rates = torch.tensor([s.rate for s in used]).to(omega)
-        return (omega[:, steps].T * rates[:, None] - target).pow(2).sum(dim=1).sqrt().mean()
-    terms = [gain_loss(omega[:, s.step] * s.rate, s, config.sigma_px) for s in used]
+        rates = torch.from_numpy(np.stack([s.rate for s in used])).to(omega)
+        return (omega[:, steps].T * rates - target).pow(2).sum(dim=1).sqrt().mean()
+    terms = [
+        gain_loss(omega[:, s.step] * torch.from_numpy(s.rate).to(omega), s, config.sigma_px)
+        for s in used
+    ]
     return torch.stack(terms).mean()
 
 
@@ -226,7 +230,7 @@ def scored_sub_window(
     camera: Intrinsics,
     teacher: TeacherSeries,
     config: ContrastLossConfig,
-    rate: float = 1.0,
+    rate: np.ndarray | None = None,
 ) -> SubWindow | None:
     """The sub-window of ``events`` ending at ``t_ref_us`` (µs) with the teacher's estimate;
     None when it has too few events or a flat image. ``rate``: see :class:`SubWindow`."""
@@ -238,6 +242,7 @@ def scored_sub_window(
     c0 = problem.contrast(np.zeros(3), 1, config.sigma_px)[0]
     if not c0 > 0:
         return None
+    rate = np.ones(3) if rate is None else np.asarray(rate, np.float64)
     return SubWindow(step, problem, float(c0), teacher.omega[i], float(teacher.gain[i]), rate)
 
 
