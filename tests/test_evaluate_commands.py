@@ -423,3 +423,30 @@ def test_a_report_made_after_the_checkpoint_has_gone_keeps_its_budget_and_operat
     assert without["operations"] == with_file["operations"] is not None
     assert training_info(None)["steps"] is None and operations(metrics["model"], None) is None
     assert "state_dict" not in json.dumps(metrics["model"]["checkpoint_meta"])
+
+
+def test_event_clock_evaluation_is_the_stream_that_predict_runs(dataset, checkpoint, tmp_path):
+    """`evaluate --clock` runs each sequence as one stream and reads it per real ms: the rows
+    `predict`'s estimator gives for the same sequence, zeros before its first step."""
+    from spikegyro.events.clock import Clock
+    from spikegyro.events.io import read_recording
+    from spikegyro.stream.estimator import Estimates
+    from spikegyro.stream.model import load_engine
+    from spikegyro.stream.predict import SNNEstimator
+
+    clock = "events:150:1-10"
+    result = run_evaluation(dataset, checkpoint, "test", tmp_path, clock=clock, num_examples=0,
+                            spike_windows=1)  # fmt: skip
+    assert "events per step" in result["model"]["name"]
+    saved = np.load(tmp_path / "predictions.npz")
+    rec = read_recording(dataset / "test" / "seq_000000.h5")
+    engine, payload = load_engine(checkpoint)
+    estimator = SNNEstimator(engine, {**payload["input"], "clock": Clock.parse(clock).as_dict()})
+    t0 = int(saved["t_start_us"][0])
+    estimator.reset(t0)
+    rows = Estimates.concatenate([estimator.update(rec.events.slice_time(t0, t0 + 200_000)),
+                                  estimator.finish(t0 + 200_000)])  # fmt: skip
+    stream = np.zeros((200, 3))
+    stream[(rows.t_us - t0) // 1000 - 1] = rows.omega
+    assert len(rows) > 150 and np.abs(rows.omega).max() > 0
+    np.testing.assert_allclose(saved["pred"][:2].reshape(200, 3), stream, rtol=1e-6, atol=1e-9)

@@ -73,3 +73,31 @@ def test_predict_user_errors_are_one_line(tmp_path, monkeypatch, capsys):
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     assert err.strip().count("\n") == 0 and "missing.pt" in err
+
+
+def test_predict_on_the_event_clock_writes_step_columns_and_sensor_pixels(tmp_path):
+    """`--clock events:N` rows every ms hold the latest step (its events, length and age);
+    `--pixels sensor` reads the sensor's own pixels around the principal point."""
+    torch.manual_seed(0)
+    spec = {"representation": "spikes", "sensor": [80, 64], "scale": 1.0, "output": "per_step"}
+    ckpt = save_checkpoint(tmp_path / "snn6.pt", SNN6(), name="snn6", model_kwargs={},
+                           input_spec=spec)  # fmt: skip
+    events = random_events(96, 72, 150, rate=0.01, seed=4)
+    rec = write_recording(tmp_path / "rec.h5", Recording(events=events))
+    out = tmp_path / "pred.csv"
+    proc = _run(rec, "--checkpoint", ckpt, "--intrinsics", 100, 100, 48, 36, "--clock",
+                "events:300:2-10", "--pixels", "sensor", "--out", out)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    pred = read_predictions(out)
+    assert np.all(np.diff(pred["t_us"]) == 1000) and len(pred["t_us"]) > 100
+    assert {"events", "step_ms", "age_ms"} <= set(pred)
+    assert np.all((pred["step_ms"] >= 2) & (pred["step_ms"] <= 10))
+    assert np.all(pred["age_ms"] >= 0) and np.all(pred["age_ms"] < 11)
+    # a window of 80x64 of 96x72 pixels: about 74 % of the events, 300 per full step
+    full = pred["events"][pred["step_ms"] < 10]
+    assert full.size and np.all(full >= 300)
+    for bad in (("--clock", "events:-3"), ("--pixels", "both")):
+        proc = _run(rec, "--checkpoint", ckpt, "--intrinsics", 100, 100, 48, 36, *bad,
+                    "--out", tmp_path / "bad.csv")  # fmt: skip
+        assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0, proc.stderr
+        assert bad[0] in proc.stderr and not (tmp_path / "bad.csv").exists()

@@ -51,6 +51,7 @@ class ClockedPredictor:
         self._pending: list[EventArray] = []
         self.step_us = np.zeros(0, np.int64)
         self.counts = np.zeros(0, np.int64)
+        self._ended_us: int | None = None
 
     def push(self, events: EventArray) -> tuple[np.ndarray, np.ndarray]:
         if len(events):
@@ -60,6 +61,7 @@ class ClockedPredictor:
 
     def finish(self, t_end_us: int) -> tuple[np.ndarray, np.ndarray]:
         """Close the steps that end before ``t_end_us`` (exclusive, the stream's end)."""
+        self._ended_us = int(t_end_us)
         begin = self._clock.begin_us
         return self._run(begin, *self._clock.finish(int(t_end_us) - 1))
 
@@ -85,8 +87,9 @@ class ClockedPredictor:
 
     @property
     def settled_us(self) -> int:
-        """Every step ending at or before this time (µs) has been returned."""
-        return self._clock.settled_us
+        """Every step ending at or before this time (µs) has been returned (at the stream's
+        end, its end: no event can come at or after it)."""
+        return self._clock.settled_us if self._ended_us is None else self._ended_us
 
 
 class RowHolder:

@@ -202,13 +202,15 @@ class StreamPredictor:
         n = n_total - self.steps
         if n <= 0:
             return np.zeros(0, np.int64), np.zeros((0, 3))
-        ev = EventArray.concatenate(self._pending)
-        cut = int(np.searchsorted(ev.t, self.t0_us + n_total * BIN_US, side="left"))
-        now, rest = ev[:cut], ev[cut:]
-        self._pending = [rest] if len(rest) else []
-        k = (now.t - self.t0_us) // BIN_US - self.steps
-        offsets = np.searchsorted(k, np.arange(n + 1), side="left")
-        index = (now.y.astype(np.int64) * self.width + now.x) * 2 + now.p
+        index, offsets = np.zeros(0, np.int64), np.zeros(n + 1, np.int64)  # bins without events
+        if self._pending:
+            ev = EventArray.concatenate(self._pending)
+            cut = int(np.searchsorted(ev.t, self.t0_us + n_total * BIN_US, side="left"))
+            now, rest = ev[:cut], ev[cut:]
+            self._pending = [rest] if len(rest) else []
+            k = (now.t - self.t0_us) // BIN_US - self.steps
+            offsets = np.searchsorted(k, np.arange(n + 1), side="left")
+            index = (now.y.astype(np.int64) * self.width + now.x) * 2 + now.p
         omega = self.engine.run(index, offsets)
         t_us = self.t0_us + (self.steps + 1 + np.arange(n, dtype=np.int64)) * BIN_US
         self.steps = n_total
