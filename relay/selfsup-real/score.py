@@ -10,7 +10,8 @@ unlabeled/davis240_rotbars/. Every number comes from ``spikegyro predict`` (the 
 PATH): per estimate from 50 ms after the scored span's start on, against the reference
 interpolated at the estimate's time, per-axis mean absolute error and mean Euclidean error,
 deg/s; ``zero_euclid`` is ω = 0's; ``lag_ms`` is the shift of the reference that best
-correlates with the estimates (positive: the estimates lag). References: translBoxes' gyro
+correlates with the estimates (positive: the estimates lag; NaN where the best is at the edge
+of ±400 ms, as on a steady motion). References: translBoxes' gyro
 with its +3.5 deg/s tilt bias removed (the bias the camera shows at rest), the shapes window's
 motion capture, and offline CMax on rot_bars' held-out tail (from 5.43 s: the last 20 %, never
 trained on) and second half (from 3.39 s, what ``adapt`` on the first half is scored on).
@@ -96,7 +97,9 @@ def lag_ms(est: np.ndarray, ref: np.ndarray, max_ms: int = 400) -> float:
         b = np.stack([np.interp(grid - lag * 1e-3, ref[:, 0], ref[:, k]) for k in (1, 2, 3)], 1)
         b -= b.mean(axis=0)
         scores.append(float((a * b).sum() / (np.linalg.norm(a) * np.linalg.norm(b) + 1e-12)))
-    return float(np.argmax(scores) - max_ms)
+    best = int(np.argmax(scores))
+    # a peak at the edge of the search is no peak: the motion does not vary enough to time it
+    return float(best - max_ms) if 0 < best < 2 * max_ms else float("nan")
 
 
 def main() -> None:
