@@ -12,7 +12,7 @@ import numpy as np
 from spikegyro.cmax.config import CMaxConfig
 from spikegyro.cmax.live import CMaxEstimator
 from spikegyro.cmax.problem import Intrinsics, camera_from_attrs, default_camera
-from spikegyro.cmax.search import estimate_window
+from spikegyro.cmax.search import estimate_whole
 from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration
 from spikegyro.events.core import EventArray
@@ -155,7 +155,4 @@ def estimate_whole_file(
     ev = rec.events.slice_time(t0 + round(start_s * 1e6), t_end)
     if not len(ev):
         raise InputError(f"{path}: no events between --start and --end.")
-    config = CMaxConfig(max_events=max(len(ev), 1))
-    t_ref = int(ev.t[-1])
-    omega = estimate_window(ev, camera, config, t_ref_us=t_ref)
-    return WholeEstimate(t_ref, omega, len(ev), ev.duration_us, note)
+    return WholeEstimate(int(ev.t[-1]), estimate_whole(ev, camera), len(ev), ev.duration_us, note)

@@ -13,7 +13,21 @@ recording is shorter than one period):
 3. BFGS to convergence at the two finest pyramid levels from the previous estimate, and the
    global search (:func:`spikegyro.cmax.search.search`) at the first estimate, every
    ``search_every_s`` and wherever the contrast gain collapses;
-4. the same confidence as live estimates (``ill_posed`` bits 1, 2 and 4).
+4. on a recording that spans at most ``whole_max_ms``, one estimate from all its events (that of
+   ``spikegyro baseline cmax --whole``) starts the first search, and each estimate keeps its
+   window's own ω or takes the whole span's, whichever sharpens the events around it more
+   (below);
+5. the same confidence as live estimates (``ill_posed`` bits 1, 2 and 4).
+
+Local or whole (step 4). A short window's ω is noisy: a tenth of a pixel of blur over a window
+that moves edges by 8 px is 1 % of the rate. Where the rotation holds over the recording, the
+whole span's ω, from all its events over many more pixels of motion, is better; where it
+changes, the window's own is. A window's own ω always sharpens its own events best, noise
+included, so the two are compared over a centred window twice as long (or long enough that
+they move its edges ``resolve_px`` apart; symmetric about the estimate's time as far as the
+recording allows, where a rate that changes linearly averages to the rate at its centre), and
+the one that sharpens it more is the estimate. A window that spans almost the whole recording
+takes the whole span's ω: both are maxima of the contrast of the same events.
 
 :func:`estimate_offline` is the function over events in memory; :class:`OfflineCMax` wraps it
 in the estimator interface so that ``spikegyro predict --method cmax --offline`` writes, scores
@@ -40,7 +54,7 @@ from spikegyro.cmax.problem import (
     default_camera,
     event_rays,
 )
-from spikegyro.cmax.search import Refined, search
+from spikegyro.cmax.search import Refined, estimate_whole, search
 from spikegyro.cmax.series import per_ms
 from spikegyro.cmax.windows import pixel_speed, rms_radius
 from spikegyro.events.calib import Calibration
@@ -64,6 +78,11 @@ class OfflineConfig:
         min_ms, max_ms: bounds of the window's length, ms.
         search_every_s: the global search runs at the first estimate and then every this many
             seconds of event time (and wherever the gain falls below half its recent best).
+        whole_max_ms: a recording spanning at most this many ms also gets one estimate from
+            all its events, and each estimate takes it where it sharpens the events around the
+            estimate more than the window's own (see the module); 0: never.
+        resolve_px: that comparison's window is at least long enough that the two move its
+            edges this far apart, binned px.
         base: the one-window settings (blur, pyramid, grid, iterations, events, one-rotation
             test); ``max_events`` and ``iterations`` default higher than live tracking's.
     """
@@ -74,6 +93,8 @@ class OfflineConfig:
     min_ms: float = 4.0
     max_ms: float = 200.0
     search_every_s: float = 0.1
+    whole_max_ms: float = 200.0
+    resolve_px: float = 1.0
     base: CMaxConfig = field(default_factory=lambda: CMaxConfig(max_events=30_000, iterations=30))
 
 
@@ -119,14 +140,19 @@ def _window(rays: _Rays, t_us: int, speed: float | None, config: OfflineConfig) 
     half_us = min(max(by_count, by_motion, 500.0 * config.min_ms), 500.0 * config.max_ms)
     a = int(np.searchsorted(t, t_us - half_us, side="left"))
     b = int(np.searchsorted(t, t_us + half_us, side="right"))
-    index = np.arange(a, b)
-    if len(index) > config.base.max_events:
-        index = index[np.linspace(0, len(index) - 1, config.base.max_events).astype(np.intp)]
-    return index
+    return _thinned(np.arange(a, b), config.base.max_events)
+
+
+def _thinned(index: np.ndarray, most: int) -> np.ndarray:
+    """``index`` thinned evenly to at most ``most`` entries."""
+    if len(index) <= most:
+        return index
+    return index[np.linspace(0, len(index) - 1, most).astype(np.intp)]
 
 
 class _Engine:
-    """The state of one pass: the previous estimate, its search time and recent gains."""
+    """The state of one pass: the previous estimate, its search time, recent gains and the
+    whole span's ω (None: not used)."""
 
     def __init__(
         self, rays: _Rays, camera: Intrinsics, sensor: tuple[int, int], cfg: OfflineConfig
@@ -139,6 +165,16 @@ class _Engine:
         self.searched_us: int | None = None
         self.best_gain = 0.0
         self.rng = np.random.default_rng(cfg.base.seed)
+        self.whole: np.ndarray | None = None
+
+    def _problem(self, index: np.ndarray, t_us: int) -> Problem:
+        """The events ``index`` of the rays, warped to ``t_us``."""
+        rays = self.rays
+        dt = (t_us - rays.t[index]) * 1e-6
+        return Problem(
+            rays.bx[index], rays.by[index], dt, np.ones(len(index)), self.intrinsics,
+            *self.sensor, self.base,
+        )  # fmt: skip
 
     def speed(self, omega: np.ndarray | None) -> float | None:
         """Image speed (px/s of the objective's binned image) under ω (rad/s; None: none)."""
@@ -152,27 +188,47 @@ class _Engine:
         base = self.config.base
         if len(index) < max(base.min_events, 2):
             return None
-        t = self.rays.t[index]
-        dt = (t_us - t) * 1e-6
-        problem = Problem(
-            self.rays.bx[index], self.rays.by[index], dt, np.ones(len(index)), self.intrinsics,
-            *self.sensor, self.base,
-        )  # fmt: skip
-        found = self._maximize(problem, t_us)
+        problem = self._problem(index, t_us)
+        omega = self._maximize(problem, t_us).omega
+        if self.whole is not None and self._whole_sharper(t_us, omega, index):
+            omega = self.whole
         flat = problem.contrast(np.zeros(3), 1, base.sigma_px)[0]
-        gain = found.contrast / flat if flat > 0 else math.nan
+        gain = problem.contrast(omega, 1, base.sigma_px)[0] / flat if flat > 0 else math.nan
         if math.isfinite(gain):
             self.best_gain = max(gain - 1.0, self.best_gain * 0.9)
+        t = self.rays.t[index]
         span = float(t[-1] - t[0])
         return (
             t_us,
-            found.omega,
+            omega,
             len(index),
             span,
-            float(dt.mean()) * 1e6,
+            float(problem.dt.mean()) * 1e6,
             gain,
-            self._flags(problem, found.omega, span),
+            self._flags(problem, omega, span),
         )
+
+    def _whole_sharper(self, t_us: int, omega: np.ndarray, index: np.ndarray) -> bool:
+        """Whether the whole span's ω sharpens the events around the window (its events
+        ``index``) at least as much as the window's own ``omega`` (rad/s) (see the module)."""
+        rays, base = self.rays, self.config.base
+        first, last = int(index[0]), int(index[-1])
+        if rays.t[last] - rays.t[first] >= 0.9 * (rays.t[-1] - rays.t[0]):
+            # The window is (almost) the whole span: two maxima of the same events' contrast
+            # differ by chance, and the whole span's uses all its events.
+            return True
+        local_us = float(max(t_us - rays.t[first], rays.t[last] - t_us))
+        apart = self.speed(self.whole - omega)
+        half_us = max(0.5e6 * self.config.resolve_px / apart if apart else 0.0, 2.0 * local_us)
+        # Symmetric about t where the recording allows: a window's mean rate is ω at its centre
+        # (to first order), and a one-sided one would favour the whole span's over a change.
+        edge_us = float(min(t_us - rays.t[0], rays.t[-1] - t_us))
+        half_us = max(min(half_us, edge_us), local_us)
+        a = int(np.searchsorted(rays.t, t_us - half_us, side="left"))
+        b = int(np.searchsorted(rays.t, t_us + half_us, side="right"))
+        check = self._problem(_thinned(np.arange(a, b), base.max_events), t_us)
+        whole = check.contrast(self.whole, 1, base.sigma_px)[0]
+        return whole >= check.contrast(omega, 1, base.sigma_px)[0]
 
     def _maximize(self, problem: Problem, t_us: int) -> Refined:
         """Search where due, else refine from the previous estimate to convergence."""
@@ -185,7 +241,10 @@ class _Engine:
             if share >= 0.5:
                 self.omega = tracked.omega
                 return tracked
-        found = search(problem, base, self.omega, grid=True, rng=self.rng)
+        # The first search also starts from the whole span's ω: a short window's own events may
+        # hold too little to find the maximum from the grid.
+        init = self.omega if self.omega is not None or self.whole is None else self.whole
+        found = search(problem, base, init, grid=True, rng=self.rng)
         self.searched_us, self.omega = t_us, found.omega
         return found
 
@@ -231,6 +290,8 @@ def estimate_offline(
     if since_us is not None:
         times = times[max(int(np.searchsorted(times, since_us, side="right")) - 1, 0) :]
     engine = _Engine(_rays(events, camera, config.base), camera, events.sensor_size, config)
+    if events.duration_us <= 1e3 * config.whole_max_ms:
+        engine.whole = estimate_whole(events, camera)
     rows = []
     for k, t_us in enumerate(times.tolist()):
         row = engine.estimate(t_us)

@@ -260,3 +260,11 @@ def estimate_window(
     if len(problem) < max(config.min_events, 2):
         return fallback.copy()
     return search(problem, config, init, grid, rng).omega
+
+
+def estimate_whole(events: EventArray, camera: Intrinsics | None = None) -> np.ndarray:
+    """One ω (3,) rad/s from all of ``events`` (none thinned, default settings), standing for
+    the whole span, stamped at its last event: ``spikegyro baseline cmax --whole``."""
+    config = CMaxConfig(max_events=max(len(events), 1))
+    t_ref = int(events.t[-1]) if len(events) else None
+    return estimate_window(events, camera, config, t_ref_us=t_ref)
