@@ -44,7 +44,7 @@ _COMMANDS: dict[str, str] = {
     "train": "spikegyro.train.commands:train_command",
     "relay-log": "spikegyro.train.commands:relay_log_command",
     "adapt": "spikegyro.train.commands:adapt_command",
-    "predict": "spikegyro.stream.commands:predict",
+    "predict": "spikegyro.cmax.commands:predict",
     "baseline": "spikegyro.cmax.commands:app",
     "calibrate-imu": "spikegyro.cmax.commands:calibrate_imu",
 }
