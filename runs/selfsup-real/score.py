@@ -1,6 +1,6 @@
 """Score SNN checkpoints, CMax and omega = 0 on the real recordings of this folder's README.
 
-    python relay/selfsup-real/score.py REAL_DIR OUT_JSON NAME=CHECKPOINT [NAME=CHECKPOINT ...]
+    python runs/selfsup-real/score.py REAL_DIR OUT_JSON NAME=CHECKPOINT [NAME=CHECKPOINT ...]
 
 REAL_DIR holds rueckauer2016_translBoxes/, ecd_windows/shapes_rotation/ and
 unlabeled/davis240_rotbars/. Every number comes from ``spikegyro predict`` (the command on

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The runs of this folder: SNN-6 from the shipped weights, batches of 4 simulated + 4 real windows.
 #
-#   relay/selfsup-real/run.sh OUT MINUTES SIM_DATA REAL_DIR [more train options, e.g. --learn-tau]
+#   runs/selfsup-real/run.sh OUT MINUTES SIM_DATA REAL_DIR [more train options, e.g. --learn-tau]
 #
 # SIM_DATA: a simulated dataset (here seed 11 mixed with a --slow-share 1 set, see README.md);
 # REAL_DIR: a folder with unlabeled/davis240_rotbars/events.txt,
