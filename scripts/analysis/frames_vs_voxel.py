@@ -32,6 +32,9 @@ from spikegyro.train.data import (
 from spikegyro.train.loss import angular_velocity_loss
 
 WINDOW_MS = 20
+TRAIN_SCORED = 200
+"""Training windows scored at each report (the first ones; scoring all would cost a step's time
+many times over)."""
 
 
 def load(data: str, splits: tuple[str, ...], spec: InputSpec) -> tuple[torch.Tensor, ...]:
@@ -71,7 +74,7 @@ def run(args: argparse.Namespace, representation: str) -> None:
     optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
     for step in range(args.steps + 1):
         if step % args.report_every == 0:
-            seen = errors(model, train_x[: args.batch * 8], train_y[: args.batch * 8])
+            seen = errors(model, train_x[:TRAIN_SCORED], train_y[:TRAIN_SCORED])
             held = errors(model, held_x, held_y)
             print(
                 f"{representation:6s} step {step:5d}  train {seen[0]:.3f} / {seen[1]:.3f}"
