@@ -18,8 +18,10 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# ruff, and the layers of docs/layout.md (import-linter's contracts in pyproject.toml).
 lint: $(STAMP)
 	$(BIN)/ruff check spikegyro tests bench scripts
+	$(BIN)/lint-imports
 
 # The documentation site (MkDocs) into site/; --strict turns every warning into an error.
 $(DOCS_STAMP): $(STAMP)

@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from spikegyro.evaluate.metrics import median_relative_error
 from spikegyro.events.core import GyroTrace
 from spikegyro.events.io import write_recording
+from spikegyro.metrics import median_relative_error
 from spikegyro.sim.dataset import SimConfig, simulate_sequence
 from spikegyro.stream.batched import SegmentConfig, batched_predictor, deviation
 from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_streaming_model

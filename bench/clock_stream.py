@@ -22,7 +22,7 @@ import numpy as np
 
 from spikegyro.events.core import EventArray
 from spikegyro.sim.dataset import SimConfig, simulate_sequence
-from spikegyro.stream.model import load_engine
+from spikegyro.stream.engine import load_engine
 from spikegyro.stream.predict import SNNEstimator, spec_with
 
 

@@ -36,7 +36,7 @@ import snntorch as snn
 import torch
 from snntorch import utils as snn_utils
 
-from spikegyro.evaluate import metrics
+from spikegyro import metrics
 from spikegyro.models.nir import read_nir, to_nir
 from spikegyro.models.registry import load_checkpoint
 from spikegyro.train.data import InputSpec, encode_window, fixed_windows

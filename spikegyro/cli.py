@@ -9,6 +9,7 @@ exit code 2; Ctrl-C is one line and exit code 130; anything else is a bug and ke
 from __future__ import annotations
 
 import importlib
+import inspect
 import os
 import sys
 import warnings
@@ -44,7 +45,7 @@ _COMMANDS: dict[str, str] = {
     "train": "spikegyro.train.commands:train_command",
     "relay-log": "spikegyro.train.commands:relay_log_command",
     "adapt": "spikegyro.train.commands:adapt_command",
-    "predict": "spikegyro.stream.commands:predict",
+    "predict": "spikegyro.cmax.commands:predict",
     "baseline": "spikegyro.cmax.commands:app",
     "calibrate-imu": "spikegyro.cmax.commands:calibrate_imu",
 }
@@ -76,10 +77,37 @@ class _LazyGroup(TyperGroup):
         if isinstance(target, typer.Typer):
             command = typer.main.get_group(target)
             command.name = cmd_name
-            return command
-        single = typer.Typer(add_completion=False)  # completion belongs to the root command
-        single.command(cmd_name)(target)
-        return typer.main.get_command(single)
+        else:
+            single = typer.Typer(add_completion=False)  # completion belongs to the root command
+            single.command(cmd_name)(target)
+            command = typer.main.get_command(single)
+        return reflow_help(command)
+
+
+def paragraphs(text: str) -> str:
+    """``text`` (a docstring) with each paragraph on one line: Typer keeps a docstring's line
+    breaks in its help, so the source's 100-column lines would show broken mid-sentence at any
+    other width. Paragraphs stay apart (blank lines), and so do list items ("- ")."""
+    out = []
+    for paragraph in inspect.cleandoc(text).split("\n\n"):
+        lines: list[str] = []
+        for line in paragraph.splitlines():
+            if not lines or line.startswith(("- ", "* ")):
+                lines.append(line.strip())
+            else:
+                lines[-1] += " " + line.strip()
+        out.append("\n".join(lines))
+    return "\n\n".join(out)
+
+
+def reflow_help(command: Any) -> Any:
+    """``command`` (a click Command or Group) with its help and its sub-commands' help as
+    :func:`paragraphs`; returns it."""
+    if command.help:
+        command.help = paragraphs(command.help)
+    for sub in getattr(command, "commands", {}).values():
+        reflow_help(sub)
+    return command
 
 
 app = typer.Typer(

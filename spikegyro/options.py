@@ -6,7 +6,14 @@ from __future__ import annotations
 
 import typer
 
-from spikegyro.events.imu import IMU_TO_CAMERA_HELP
+IMU_TO_CAMERA_HELP = (
+    "Rotation from the IMU's axes to the camera's (x right, y down, z forward): signed axes, one "
+    "per camera axis, e.g. '-x,-y,z' for omega_cam = (-gx, -gy, gz), or 9 numbers, the rows of "
+    "R with omega_cam = R omega_imu (`spikegyro calibrate-imu` estimates it). Default: text and "
+    "HDF5 gyros are in the camera frame; a camera file's IMU gets its camera's known rotation "
+    "(jAER DAVIS240: -x,-y,z), else stays in IMU axes with a warning."
+)
+"""Help text of the ``--imu-to-camera`` option, shared by every command that reads a gyro."""
 
 INTRINSICS = typer.Option(
     None, "--intrinsics", help="Sensor pinhole intrinsics fx fy cx cy (pixels), no distortion."

@@ -22,8 +22,8 @@ from spikegyro.cmax.problem import base_scale
 from spikegyro.cmax.windows import EventBuffer, HotPixels, Thinning, WindowPolicy
 from spikegyro.events.calib import PinholeCamera
 from spikegyro.events.core import EventArray, GyroTrace, Recording
-from spikegyro.events.imu import fit_imu_to_camera, gyro_frame, imu_rotation, rotation_text
-from spikegyro.events.io import write_gyro_txt, write_recording
+from spikegyro.events.imu import fit_imu_to_camera, imu_rotation, rotation_text
+from spikegyro.events.io import gyro_frame, write_gyro_txt, write_recording
 from spikegyro.stream.estimator import Estimates, GyroEstimator, output_times
 from spikegyro.stream.writer import read_predictions
 

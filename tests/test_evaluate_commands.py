@@ -430,8 +430,8 @@ def test_event_clock_evaluation_is_the_stream_that_predict_runs(dataset, checkpo
     `predict`'s estimator gives for the same sequence, zeros before its first step."""
     from spikegyro.events.clock import Clock
     from spikegyro.events.io import read_recording
+    from spikegyro.stream.engine import load_engine
     from spikegyro.stream.estimator import Estimates
-    from spikegyro.stream.model import load_engine
     from spikegyro.stream.predict import SNNEstimator
 
     clock = "events:150:1-10"

@@ -7,9 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from spikegyro import metrics
 from spikegyro.baselines.mean import mean_predictions, training_mean_omega
 from spikegyro.errors import InputError
-from spikegyro.evaluate import bins, metrics
+from spikegyro.evaluate import bins
 from spikegyro.events.core import EventArray, GyroTrace, Recording
 from spikegyro.events.io import write_recording
 

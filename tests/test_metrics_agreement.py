@@ -1,4 +1,4 @@
-"""One definition of the paper's metrics: evaluation (``spikegyro.evaluate.metrics``), training
+"""One definition of the paper's metrics: evaluation (``spikegyro.metrics``), training
 validation (``spikegyro.train.loss.validation_metrics``) and the streaming scores of ``spikegyro
 predict`` give the same numbers on the same predictions."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spikegyro.evaluate import metrics
+from spikegyro import metrics
 from spikegyro.train.loss import validation_metrics
 
 
@@ -91,6 +91,6 @@ def test_the_metrics_import_without_torch():
     import subprocess
     import sys
 
-    code = "import sys, spikegyro.evaluate.metrics; print('torch' in sys.modules)"
+    code = "import sys, spikegyro.metrics; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

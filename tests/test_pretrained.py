@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from spikegyro.errors import InputError
-from spikegyro.evaluate.metrics import mean_euclidean_error, median_relative_error
+from spikegyro.metrics import mean_euclidean_error, median_relative_error
 from spikegyro.models.registry import (
     PRETRAINED_DIR,
     PRETRAINED_SNN6,

@@ -175,7 +175,8 @@ def test_event_engine_takes_the_variants(kwargs: dict) -> None:
 
 
 def test_stream_engine_hands_the_variants_to_the_batched_path(tmp_path, capsys) -> None:
-    from spikegyro.stream.model import BatchedOnly, load_engine, load_streaming_model
+    from spikegyro.stream.engine import load_engine
+    from spikegyro.stream.model import BatchedOnly, load_streaming_model
     from spikegyro.stream.stateful import StreamingSNN
 
     spec = {"representation": "spikes", "sensor": [240, 180], "scale": 0.5, "window_ms": 100}

@@ -10,8 +10,8 @@ import pytest
 import torch
 from stream_helpers import TinySNN, random_events
 
+from spikegyro import metrics
 from spikegyro.errors import InputError
-from spikegyro.evaluate import metrics
 from spikegyro.events.calib import Calibration
 from spikegyro.events.core import GyroTrace, Recording
 from spikegyro.events.io import write_gyro_txt, write_recording
@@ -98,7 +98,7 @@ def test_gyro_columns_are_the_interpolated_reference(tmp_path, engine, recording
 
 
 def test_stream_scores_are_the_evaluation_metrics(tmp_path, engine, recording):
-    """The scores ``predict`` prints against a gyro are ``spikegyro.evaluate.metrics`` on the
+    """The scores ``predict`` prints against a gyro are ``spikegyro.metrics`` on the
     rows it wrote (those after the warm-up, as one window scored from its first step)."""
     path = write_recording(tmp_path / "rec.h5", recording)
     gyro_path = tmp_path / "gyro.txt"

@@ -16,8 +16,9 @@ from scipy.ndimage import gaussian_filter
 
 from spikegyro.events.core import EventArray
 from spikegyro.sim.camera import Camera
-from spikegyro.sim.esim import EventSimConfig, simulate
+from spikegyro.sim.esim import simulate
 from spikegyro.sim.panorama import Panorama, mirror_panorama
+from spikegyro.sim.sensor import EventSimConfig
 from spikegyro.sim.trajectory import Trajectory, random_rotation
 from spikegyro.train.augment import (
     HORIZONTAL_MIRROR,

@@ -65,7 +65,7 @@ def test_segments_are_shifted_onto_the_relay_clock(tmp_path: Path) -> None:
 
 
 def test_the_shipped_relay_state_matches_its_log() -> None:
-    relay = Path(__file__).resolve().parents[1] / "relay" / "snn6"
+    relay = Path(__file__).resolve().parents[1] / "runs" / "snn6"
     state = read_state(relay)
     with (relay / "relay_log.csv").open() as f:
         last = list(csv.DictReader(f))[-1]

@@ -3,9 +3,10 @@
 ``run_evaluation`` scores a model and the mean predictor on a dataset split and writes
 metrics.json, predictions.npz, figures and a report (:mod:`.simulated`); ``compare_runs`` puts
 several such runs side by side; ``run_real_evaluation`` scores SNN-6, CMax and the mean
-predictor against a gyro on a real recording (:mod:`.real`). The pure metric functions live in
-:mod:`.metrics` (the one definition that evaluation, training validation and the tests use) and
-:mod:`.bins`, the gyro-events clock offset fit in :mod:`.offset`.
+predictor against a gyro on a real recording (:mod:`.real`). The paper's metrics are
+:mod:`spikegyro.metrics` (one definition for evaluation, training validation and ``predict``,
+below all three), the per-speed bins :mod:`.bins`, the gyro-events clock offset fit
+:mod:`.offset`.
 """
 
 from typing import Any
@@ -20,8 +21,8 @@ __all__ = ["compare_runs", "run_evaluation", "run_real_evaluation"]
 
 
 def __getattr__(name: str) -> Any:
-    # The drivers import torch, matplotlib and the models: imported on first use, so that
-    # `spikegyro.evaluate.metrics` (which training validation imports) stays light.
+    # The drivers import torch, matplotlib and the models: imported on first use, so that the
+    # light modules of this package (bins, offset) do not pay for them.
     if name in _LAZY:
         import importlib
 

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from spikegyro.errors import InputError
-from spikegyro.evaluate.metrics import (
+from spikegyro.metrics import (
     EVAL_START_STEP,
     MIN_SPEED_DEG_S,
     evaluated_steps,
@@ -80,7 +80,7 @@ def per_bin_metrics(
     start: int = EVAL_START_STEP,
     min_speed_deg_s: float = MIN_SPEED_DEG_S,
 ) -> list[dict[str, Any]]:
-    """The metrics of :func:`spikegyro.evaluate.metrics.summary` within each speed bin.
+    """The metrics of :func:`spikegyro.metrics.summary` within each speed bin.
 
     ``pred`` and ``gt`` are (n, T, 3) rad/s; pairs are binned by true speed at their step. Each
     entry holds ``label``, ``lo_deg_s``, ``hi_deg_s`` (None for an open end), ``n_pairs`` and,

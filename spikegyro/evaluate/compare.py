@@ -35,7 +35,6 @@ from rich.table import Table as RichTable
 from spikegyro.errors import InputError
 from spikegyro.evaluate import energy, figures
 from spikegyro.evaluate.console import write_json
-from spikegyro.evaluate.metrics import AXES, EVAL_START_STEP, WINDOW_METRIC_MS
 from spikegyro.evaluate.report import (
     PAPER_RESULTS,
     PER_MS_LABEL,
@@ -48,6 +47,7 @@ from spikegyro.evaluate.report import (
     paper_row,
     write_report,
 )
+from spikegyro.metrics import AXES, EVAL_START_STEP, WINDOW_METRIC_MS
 from spikegyro.models.registry import build_model, read_checkpoint, training_total
 from spikegyro.train.data import InputSpec
 

@@ -12,9 +12,9 @@ from rich.markup import escape
 from rich.table import Table as RichTable
 
 from spikegyro.evaluate.kinds import kind_table
-from spikegyro.evaluate.metrics import WINDOW_METRIC_MS
 from spikegyro.evaluate.report import PER_MS_LABEL, PER_WINDOW_LABEL, Table, fmt
 from spikegyro.events.io import atomic_path
+from spikegyro.metrics import WINDOW_METRIC_MS
 
 
 def write_json(path: Path, data: dict[str, Any]) -> None:

@@ -18,8 +18,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
-from spikegyro.evaluate.metrics import AXES
 from spikegyro.events.io import atomic_path
+from spikegyro.metrics import AXES
 
 # Okabe-Ito colors (distinguishable with the common color-vision deficiencies).
 MODEL_COLORS: dict[str, str] = {

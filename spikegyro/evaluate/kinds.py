@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from spikegyro.evaluate.metrics import AXES, EVAL_START_STEP, MIN_SPEED_DEG_S, summary
 from spikegyro.evaluate.report import Table, fmt
 from spikegyro.events.io import read_hdf5_attrs
+from spikegyro.metrics import AXES, EVAL_START_STEP, MIN_SPEED_DEG_S, summary
 from spikegyro.sim.dataset import SCENE_KINDS, UNKNOWN_SCENE, scene_kind
 from spikegyro.train.data import Window
 
@@ -39,7 +39,7 @@ def per_kind_metrics(
     start: int = EVAL_START_STEP,
     min_speed_deg_s: float = MIN_SPEED_DEG_S,
 ) -> dict[str, dict[str, Any]]:
-    """The headline metrics of :func:`spikegyro.evaluate.metrics.summary` within each kind.
+    """The headline metrics of :func:`spikegyro.metrics.summary` within each kind.
 
     ``pred`` and ``gt`` are (n, T, 3) rad/s, ``kinds`` one label per window. Returns, for each
     kind present (in the order of :data:`SCENE_KINDS`, then any other label alphabetically):

@@ -44,6 +44,7 @@ import numpy as np
 from rich.console import Console
 from rich.progress import Progress
 
+from spikegyro import metrics
 from spikegyro.baselines.mean import training_mean_omega
 from spikegyro.checks import check_output_dir
 from spikegyro.cmax import series as cmax_series
@@ -52,7 +53,6 @@ from spikegyro.cmax.offline import estimate_offline
 from spikegyro.cmax.problem import camera_from_attrs
 from spikegyro.cmax.search import estimate_window
 from spikegyro.errors import InputError
-from spikegyro.evaluate import metrics
 from spikegyro.evaluate.bins import (
     SPEED_BIN_EDGES_DEG_S,
     bins_json,
@@ -77,7 +77,8 @@ from spikegyro.events.io import atomic_dir, read_gyro, read_recording
 from spikegyro.events.windows import BIN_US, bin_means, event_windows, time_windows
 from spikegyro.pretrained import resolve_checkpoint
 from spikegyro.stream.clocked import ClockedPredictor, hold_on_grid
-from spikegyro.stream.model import DEFAULT_CHECKPOINT, load_engine
+from spikegyro.stream.engine import load_engine
+from spikegyro.stream.model import DEFAULT_CHECKPOINT
 from spikegyro.stream.predict import (
     WARMUP_STEPS,
     clocked_predictor,

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from spikegyro.evaluate.metrics import AXES, EVAL_START_STEP, MIN_SPEED_DEG_S, WINDOW_METRIC_MS
 from spikegyro.events.io import atomic_path
+from spikegyro.metrics import AXES, EVAL_START_STEP, MIN_SPEED_DEG_S, WINDOW_METRIC_MS
 
 PAPER_RESULTS: dict[str, dict[str, float]] = {
     "Mean": {"median_relative_error": 1.00, "mean_euclidean_error_deg_s": 226.9},
@@ -226,7 +226,7 @@ def metric_header(window_label: str = PER_WINDOW_LABEL) -> list[str]:
 
 def metric_cells(result: Mapping[str, Any]) -> list[str]:
     """The cells under :func:`metric_header` for one model entry: ``metrics`` (from
-    :func:`spikegyro.evaluate.metrics.summary`, or None: all ``-``) and optionally
+    :func:`spikegyro.metrics.summary`, or None: all ``-``) and optionally
     ``window_metrics`` (the same keys plus ``n_windows``; ``-`` where missing)."""
     m = result.get("metrics") or {}
     w = result.get("window_metrics") or {}
@@ -246,8 +246,8 @@ def overall_table(models: Mapping[str, Mapping[str, Any]], caption: str) -> Tabl
     """One row per model: our per-ms and per-window metrics, then the paper's numbers.
 
     ``models`` maps display name -> a ``metrics.json`` model entry: ``metrics`` (from
-    :func:`spikegyro.evaluate.metrics.summary`), optionally ``window_metrics`` (from
-    :func:`spikegyro.evaluate.metrics.window_metrics`; ``-`` where missing) and what
+    :func:`spikegyro.metrics.summary`), optionally ``window_metrics`` (from
+    :func:`spikegyro.metrics.window_metrics`; ``-`` where missing) and what
     :func:`paper_row` reads. The caption is extended with what the two metric groups mean.
     """
     header = [

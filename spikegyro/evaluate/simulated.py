@@ -4,7 +4,7 @@
 maximization) and the mean predictor over a split's fixed windows in four steps: plan (every
 input checked, nothing run or written: :func:`plan_evaluation`), predict (the models run:
 :func:`predict_evaluation`), score (:func:`score_evaluation`, the metrics of
-:mod:`spikegyro.evaluate.metrics`) and write (:func:`write_evaluation`). It writes into ``OUT``:
+:mod:`spikegyro.metrics`) and write (:func:`write_evaluation`). It writes into ``OUT``:
 
 - ``metrics.json``: overall per-ms (``metrics``), per-20-ms-window (``window_metrics``), per-axis
   and per-speed-bin metrics of the model (key ``model``) and of the mean predictor (key ``mean``),
@@ -31,10 +31,11 @@ import torch
 from rich.console import Console
 from rich.progress import Progress
 
+from spikegyro import metrics
 from spikegyro.baselines.mean import mean_predictions, training_mean_omega
 from spikegyro.checks import check_device, check_output_dir
 from spikegyro.errors import InputError, check_interrupt
-from spikegyro.evaluate import figures, metrics
+from spikegyro.evaluate import figures
 from spikegyro.evaluate.bins import (
     SPEED_BIN_EDGES_DEG_S,
     bins_json,
@@ -66,7 +67,7 @@ from spikegyro.models.registry import (
     resolve_checkpoint,
 )
 from spikegyro.stream.clocked import clocked_per_ms
-from spikegyro.stream.model import load_engine
+from spikegyro.stream.engine import load_engine
 from spikegyro.stream.predict import clocked_predictor
 from spikegyro.train.data import InputSpec, Window, fixed_windows, with_clock
 from spikegyro.train.infer import predict_windows, spec_of

@@ -14,11 +14,12 @@ from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from spikegyro import options
 from spikegyro.checks import check_output_dir, check_output_file, sensor_option
 from spikegyro.errors import InputError
 from spikegyro.events import stats
 from spikegyro.events.convert import convert
-from spikegyro.events.imu import IMU_TO_CAMERA_HELP, imu_rotation
+from spikegyro.events.imu import imu_rotation
 from spikegyro.events.io import atomic_dir, detect_format, read_recording, recording_name
 
 
@@ -69,11 +70,7 @@ def convert_command(
     ),
     width: int = typer.Option(None, help="Sensor width in pixels (when the input lacks it)."),
     height: int = typer.Option(None, help="Sensor height in pixels (when the input lacks it)."),
-    imu_to_camera: str = typer.Option(
-        None,
-        "--imu-to-camera",
-        help=IMU_TO_CAMERA_HELP,
-    ),
+    imu_to_camera: str = options.IMU_TO_CAMERA,
     chunk_events: int = typer.Option(1_000_000, min=1, help="Events per chunk (bounds memory)."),
     force: bool = typer.Option(
         False, "--force", help="Replace an existing output folder whole (refused without it)."

@@ -23,23 +23,12 @@ events' clock; the reference for an estimate at event time ``t`` is ``gyro(t - o
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from spikegyro.errors import InputError
 from spikegyro.events.core import GyroTrace
-
-IMU_TO_CAMERA_HELP = (
-    "Rotation from the IMU's axes to the camera's (x right, y down, z forward): signed axes, one "
-    "per camera axis, e.g. '-x,-y,z' for omega_cam = (-gx, -gy, gz), or 9 numbers, the rows of "
-    "R with omega_cam = R omega_imu (`spikegyro calibrate-imu` estimates it). Default: text and "
-    "HDF5 gyros are in the camera frame; a camera file's IMU gets its camera's known rotation "
-    "(jAER DAVIS240: -x,-y,z), else stays in IMU axes with a warning."
-)
-"""Help text of the ``--imu-to-camera`` option, shared by every command that reads a gyro."""
 
 _AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -148,66 +137,6 @@ def covers(trace: GyroTrace, t_us: np.ndarray) -> np.ndarray:
     if len(trace) == 0:
         return np.zeros(t.shape, dtype=bool)
     return (t >= trace.t[0]) & (t <= trace.t[-1])
-
-
-KNOWN_IMU_TO_CAMERA: dict[tuple[str, str], tuple[str, str]] = {
-    ("jaer2", "davis240"): (
-        "-x,-y,z",
-        "jAER DAVIS240 files: the IMU's x and y point against the camera's once jAER's y is "
-        "flipped to point down (contrast maximization against the gyro on real DAVIS240C pan "
-        "and roll recordings)",
-    ),
-}
-"""(format, camera model substring) -> (``--imu-to-camera`` value, where it comes from), for
-cameras whose IMU mounting is known. Other cameras' gyros stay in their IMU's axes."""
-
-
-@dataclass(frozen=True)
-class GyroFrame:
-    """How a gyro file's samples are taken into the camera frame.
-
-    Attributes:
-        rotation: R with ω_camera = R ω_file, or None (used as it is).
-        message: what the user should be told (None: nothing to say).
-        warning: whether ``message`` is a warning (the frame is unknown) rather than a note.
-    """
-
-    rotation: np.ndarray | None
-    message: str | None = None
-    warning: bool = False
-
-
-def gyro_frame(gyro_path: str | os.PathLike, imu_to_camera: str | None) -> GyroFrame:
-    """The rotation to apply to ``gyro_path``'s samples, and what to say about it.
-
-    ``--imu-to-camera`` wins. Text and HDF5 gyros are in the camera frame by convention. A
-    camera file's IMU is in its own axes: its known rotation (:data:`KNOWN_IMU_TO_CAMERA`) is
-    applied with a note, otherwise a warning says the gyro stays in IMU axes.
-    """
-    if imu_to_camera:
-        return GyroFrame(imu_rotation(imu_to_camera))
-    from spikegyro.events import io  # io imports this module
-
-    path = Path(gyro_path)
-    kind = io.detect_format(path)
-    if kind not in io.CAMERA_FORMATS:
-        return GyroFrame(None)
-    header = io.CAMERA_FORMATS[kind].read_header(path, kind)
-    model = str(header.attrs.get("camera", "")) or kind
-    for (fmt, name), (text, source) in KNOWN_IMU_TO_CAMERA.items():
-        if fmt == kind and name in model.lower().replace("_", ""):
-            return GyroFrame(
-                imu_rotation(text),
-                f"gyro of a {model} ({kind}) file: applying --imu-to-camera {text} ({source}); "
-                "pass --imu-to-camera to override.",
-            )
-    return GyroFrame(
-        None,
-        f"the gyro of {path.name} ({model}) is in its IMU's axes and this camera's IMU-to-camera "
-        "rotation is not known: it is compared unrotated. Estimate it with `spikegyro "
-        "calibrate-imu` and pass --imu-to-camera.",
-        warning=True,
-    )
 
 
 def rotation_text(rotation: np.ndarray, tolerance_deg: float = 5.0) -> str:

@@ -49,7 +49,7 @@ from spikegyro.events.blocks import (
     sorted_chunks,
 )
 from spikegyro.events.core import EventArray, GyroTrace, Recording
-from spikegyro.events.imu import rotate_to_camera
+from spikegyro.events.imu import imu_rotation, rotate_to_camera
 
 DEFAULT_SENSOR = (240, 180)
 OFFICIAL_KEYS = ("ev_xy", "ev_ts", "ev_pol", "ang_xyz", "ang_ts")
@@ -311,6 +311,64 @@ def read_gyro_if_any(
     if gyro is None:
         return None
     return replace(gyro, omega=rotate_to_camera(gyro.omega, imu_to_camera))
+
+
+KNOWN_IMU_TO_CAMERA: dict[tuple[str, str], tuple[str, str]] = {
+    ("jaer2", "davis240"): (
+        "-x,-y,z",
+        "jAER DAVIS240 files: the IMU's x and y point against the camera's once jAER's y is "
+        "flipped to point down (contrast maximization against the gyro on real DAVIS240C pan "
+        "and roll recordings)",
+    ),
+}
+"""(format, camera model substring) -> (``--imu-to-camera`` value, where it comes from), for
+cameras whose IMU mounting is known. Other cameras' gyros stay in their IMU's axes."""
+
+
+@dataclass(frozen=True)
+class GyroFrame:
+    """How a gyro file's samples are taken into the camera frame.
+
+    Attributes:
+        rotation: R with ω_camera = R ω_file, or None (used as it is).
+        message: what the user should be told (None: nothing to say).
+        warning: whether ``message`` is a warning (the frame is unknown) rather than a note.
+    """
+
+    rotation: np.ndarray | None
+    message: str | None = None
+    warning: bool = False
+
+
+def gyro_frame(gyro_path: str | os.PathLike, imu_to_camera: str | None) -> GyroFrame:
+    """The rotation to apply to ``gyro_path``'s samples, and what to say about it.
+
+    ``--imu-to-camera`` wins. Text and HDF5 gyros are in the camera frame by convention. A
+    camera file's IMU is in its own axes: its known rotation (:data:`KNOWN_IMU_TO_CAMERA`) is
+    applied with a note, otherwise a warning says the gyro stays in IMU axes.
+    """
+    if imu_to_camera:
+        return GyroFrame(imu_rotation(imu_to_camera))
+    path = Path(gyro_path)
+    kind = detect_format(path)
+    if kind not in CAMERA_FORMATS:
+        return GyroFrame(None)
+    header = CAMERA_FORMATS[kind].read_header(path, kind)
+    model = str(header.attrs.get("camera", "")) or kind
+    for (fmt, name), (text, source) in KNOWN_IMU_TO_CAMERA.items():
+        if fmt == kind and name in model.lower().replace("_", ""):
+            return GyroFrame(
+                imu_rotation(text),
+                f"gyro of a {model} ({kind}) file: applying --imu-to-camera {text} ({source}); "
+                "pass --imu-to-camera to override.",
+            )
+    return GyroFrame(
+        None,
+        f"the gyro of {path.name} ({model}) is in its IMU's axes and this camera's IMU-to-camera "
+        "rotation is not known: it is compared unrotated. Estimate it with `spikegyro "
+        "calibrate-imu` and pass --imu-to-camera.",
+        warning=True,
+    )
 
 
 def _require_keys(f: h5py.File, keys: tuple[str, ...], path: Path) -> None:

@@ -49,10 +49,10 @@ mixes in sparse and office scenes (:mod:`spikegyro.sim.indoor`).
 
 from spikegyro.sim.camera import Camera
 from spikegyro.sim.dataset import SimConfig, generate_dataset, simulate_sequence
-from spikegyro.sim.esim import EventSimConfig, frame_times, simulate
+from spikegyro.sim.esim import frame_times, simulate
 from spikegyro.sim.panorama import Panorama, load_panorama, mirror_panorama
 from spikegyro.sim.render import Renderer, render
-from spikegyro.sim.sensor import SENSOR_PRESETS, SensorParams, SensorPreset
+from spikegyro.sim.sensor import SENSOR_PRESETS, EventSimConfig, SensorParams, SensorPreset
 from spikegyro.sim.trajectory import (
     Trajectory,
     TrajectoryConfig,

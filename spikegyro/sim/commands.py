@@ -23,8 +23,7 @@ from spikegyro.events.io import read_recording
 from spikegyro.events.plot import plot_events_and_omega
 from spikegyro.sim.camera import Camera
 from spikegyro.sim.dataset import SimConfig, export_official, generate_dataset
-from spikegyro.sim.esim import EventSimConfig
-from spikegyro.sim.sensor import SENSOR_PRESETS, sensor_preset
+from spikegyro.sim.sensor import SENSOR_PRESETS, EventSimConfig, sensor_preset
 from spikegyro.sim.trajectory import TrajectoryConfig
 
 

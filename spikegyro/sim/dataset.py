@@ -47,7 +47,7 @@ from spikegyro.events.calib import PinholeCamera
 from spikegyro.events.core import GyroTrace, Recording
 from spikegyro.events.io import atomic_path, read_recording, write_recording
 from spikegyro.sim.camera import Camera
-from spikegyro.sim.esim import EventSimConfig, simulate
+from spikegyro.sim.esim import simulate
 from spikegyro.sim.indoor import office_panorama, sparse_panorama
 from spikegyro.sim.panorama import (
     Panorama,
@@ -57,7 +57,7 @@ from spikegyro.sim.panorama import (
     split_panoramas,
 )
 from spikegyro.sim.procedural import add_detail, panorama_width, procedural_panorama
-from spikegyro.sim.sensor import SensorParams, SensorPreset, sensor_preset
+from spikegyro.sim.sensor import EventSimConfig, SensorParams, SensorPreset, sensor_preset
 from spikegyro.sim.trajectory import TrajectoryConfig, random_trajectory
 
 SPLITS = ("train", "val", "test")

@@ -21,7 +21,7 @@ sets these and adds hot pixels, the photoreceptor's low-pass and a distorted len
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 
 import numpy as np
 
@@ -30,6 +30,7 @@ from spikegyro.sim.camera import Camera
 from spikegyro.sim.panorama import Panorama
 from spikegyro.sim.render import Renderer
 from spikegyro.sim.sensor import (
+    EventSimConfig,
     Photoreceptor,
     SensorParams,
     hot_pixel_events,
@@ -37,24 +38,6 @@ from spikegyro.sim.sensor import (
     sensor_rays,
 )
 from spikegyro.sim.trajectory import Trajectory
-
-
-@dataclass(frozen=True)
-class EventSimConfig:
-    """Event-camera model (thresholds in log-intensity units, times in µs, rates in Hz)."""
-
-    contrast_on: float = 0.45
-    contrast_off: float = 0.45
-    mismatch_std: float = 0.03
-    noise_std: float = 0.01
-    min_contrast: float = 0.01
-    refractory_us: int = 0
-    shot_noise_hz: float = 0.0
-    leak_hz: float = 0.0
-    eps: float = 1e-3
-    max_px_per_frame: float = 0.5
-    min_frame_rate_hz: float = 500.0
-    chunk_frames: int = 16
 
 
 def frame_times(

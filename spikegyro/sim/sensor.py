@@ -52,7 +52,7 @@ so that event rates cover those of real rotation recordings (0.2 to 5 M events/s
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -60,10 +60,25 @@ from spikegyro.errors import InputError
 from spikegyro.events.calib import Calibration
 from spikegyro.sim.camera import Camera
 
-if TYPE_CHECKING:
-    from spikegyro.sim.esim import EventSimConfig
-
 Range = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class EventSimConfig:
+    """Event-camera model (thresholds in log-intensity units, times in µs, rates in Hz)."""
+
+    contrast_on: float = 0.45
+    contrast_off: float = 0.45
+    mismatch_std: float = 0.03
+    noise_std: float = 0.01
+    min_contrast: float = 0.01
+    refractory_us: int = 0
+    shot_noise_hz: float = 0.0
+    leak_hz: float = 0.0
+    eps: float = 1e-3
+    max_px_per_frame: float = 0.5
+    min_frame_rate_hz: float = 500.0
+    chunk_frames: int = 16
 
 
 @dataclass(frozen=True)

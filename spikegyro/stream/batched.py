@@ -34,6 +34,8 @@ from spikegyro.events import binning_torch
 from spikegyro.events.calib import PinholeCamera
 from spikegyro.events.core import EventArray
 from spikegyro.events.windows import BIN_US
+from spikegyro.models.registry import load_checkpoint
+from spikegyro.stream.model import load_streaming_spec
 from spikegyro.stream.predict import PredictorFactory
 from spikegyro.stream.stateful import SNNSpec
 
@@ -230,9 +232,6 @@ def batched_predictor(
     :func:`spikegyro.stream.model.load_streaming_model`: returns (the factory
     :func:`~spikegyro.stream.predict.predict_stream` takes as its engine, metadata). Raises
     InputError for a missing device or a model that does not predict every step."""
-    from spikegyro.models.registry import load_checkpoint
-    from spikegyro.stream.model import load_streaming_spec
-
     dev = resolve_device(device)
     spec, meta = load_streaming_spec(Path(checkpoint))  # checks it is a per-step SNN
     model, _ = load_checkpoint(checkpoint)

@@ -17,8 +17,8 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from spikegyro.checks import sensor_option
 from spikegyro.events.calib import Calibration, resolve_calibration
-from spikegyro.events.imu import gyro_frame, imu_rotation
-from spikegyro.events.io import EVENT_FILE_HELP
+from spikegyro.events.imu import imu_rotation
+from spikegyro.events.io import EVENT_FILE_HELP, gyro_frame
 from spikegyro.stream.estimator import GyroEstimator
 from spikegyro.stream.predict import StreamResult, check_span, predict_stream, span_seconds
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import sys
 import zipfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -24,8 +23,6 @@ from spikegyro.stream.stateful import SNNSpec, SRMLayerSpec, StreamingSNN
 
 if TYPE_CHECKING:
     from torch import nn
-
-    from spikegyro.stream.predict import PredictorFactory
 
 DEFAULT_CHECKPOINT = bundled_path(DEFAULT_NAME)
 """The shipped pretrained SNN-6 (``spikegyro.models.registry.PRETRAINED_SNN6``, taken from the
@@ -208,28 +205,3 @@ def load_streaming_model(
             "spike pooling only, not log-polar channels or a grid readout"
         )
     return StreamingSNN(spec, threads=threads), meta
-
-
-def load_engine(
-    path: str | os.PathLike,
-    device: str = "stream",
-    threads: int = 1,
-    segment_ms: int = 400,
-    context_ms: int = 100,
-    batch: int | None = None,
-) -> tuple[StreamingSNN | PredictorFactory, dict[str, Any]]:
-    """A checkpoint's network as ``predict`` runs it, and its metadata: on ``device="stream"``
-    the exact event-driven engine on ``threads`` CPU threads, else (a torch device) the batched
-    approximate path, segments of ``segment_ms`` after ``context_ms`` of warm-up, ``batch``
-    segments a pass (None: from memory)."""
-    path = resolve_checkpoint(path)
-    if device == "stream":
-        try:
-            return load_streaming_model(path, threads=threads)
-        except BatchedOnly as exc:
-            print(f"{exc}: running it on the batched path (--device cpu).", file=sys.stderr)
-            device = "cpu"
-    # torch is imported only here: the exact stream needs none once the spec is cached
-    from spikegyro.stream.batched import SegmentConfig, batched_predictor
-
-    return batched_predictor(path, device, SegmentConfig(segment_ms, context_ms, batch))

@@ -24,8 +24,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from spikegyro import metrics
 from spikegyro.errors import InputError, check_interrupt
-from spikegyro.evaluate import metrics
 from spikegyro.events.calib import Calibration, PinholeCamera
 from spikegyro.events.clock import Clock
 from spikegyro.events.core import EventArray, GyroTrace
@@ -349,7 +349,7 @@ class SNNEstimator:
 class ErrorStats:
     """Running error statistics of predictions against a reference, in bounded memory.
 
-    Each estimate's errors are those of :mod:`spikegyro.evaluate.metrics` (the rows taken as
+    Each estimate's errors are those of :mod:`spikegyro.metrics` (the rows taken as
     one window whose every step is scored); their sums (deg/s) give the means, and a histogram
     of log10 relative errors (0.1 % bins) gives the median.
     """

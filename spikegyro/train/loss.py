@@ -8,7 +8,7 @@ import math
 import numpy as np
 import torch
 
-from spikegyro.evaluate import metrics
+from spikegyro import metrics
 
 
 def euclidean_error(prediction: torch.Tensor, target: torch.Tensor, dim: int) -> torch.Tensor:
@@ -43,9 +43,9 @@ def validation_metrics(
 ) -> dict[str, float]:
     """Loss and the paper's headline numbers on (n, T, 3) rad/s arrays, steps >= start_step.
 
-    The numbers are :mod:`spikegyro.evaluate.metrics`'s, so validation and ``spikegyro
+    The numbers are :mod:`spikegyro.metrics`'s, so validation and ``spikegyro
     evaluate`` agree: ``val_median_rel`` is
-    :func:`~spikegyro.evaluate.metrics.median_relative_error` (NaN when no true speed reaches
+    :func:`~spikegyro.metrics.median_relative_error` (NaN when no true speed reaches
     1 deg/s), ``val_mean_err_deg`` the mean Euclidean error in deg/s (the paper's "RMSE") and
     ``val_loss`` the same in rad/s (the training loss's unit).
     A diverged model (a non-finite prediction) scores NaN throughout, which never counts as
