@@ -253,6 +253,12 @@ class RealWindows:
             end = int(rec.events.t[-1])
             scored = [self._scored(index, start, end) for start in range(lo, hi + 1, step_us)]
             out += [s for s in scored if s is not None]
+        if not out:
+            raise InputError(
+                f"the held-out part of the real recordings holds no window of "
+                f"{self.spec.window_ms} steps ({self.spec.step_clock.label}); give longer "
+                "recordings (slow motion makes the event clock's steps long)."
+            )
         return out
 
 
