@@ -239,3 +239,23 @@ def test_real_windows_on_the_event_clock_score_each_step_where_it_ends(simulated
         truth = torch.from_numpy(np.tile(OMEGA / sub.rate, (20, 1)).T.copy())
         assert float(window_loss(truth, subs, config, "contrast")) < -0.2
         assert float(window_loss(truth * 0, subs, config, "contrast")) == pytest.approx(0.0)
+
+
+def test_adapt_keeps_the_checkpoints_clock(tmp_path):
+    from spikegyro.events.clock import Clock
+    from spikegyro.models.registry import save_checkpoint
+    from spikegyro.models.snn6 import SNN6
+    from spikegyro.train.adapt import CLOCKED_WINDOWS, AdaptSettings, adapt_config
+
+    clock = Clock(800, 1000, 25_000)
+    spec = {**InputSpec().as_dict(), "clock": clock.as_dict()}
+    ckpt = save_checkpoint(tmp_path / "clocked.pt", SNN6(), name="snn6", model_kwargs={},
+                           input_spec=spec)  # fmt: skip
+    rec = tmp_path / "rec.txt"
+    rec.write_text("0.0 1 1 1\n")
+    config = adapt_config(AdaptSettings([str(rec)], "200,200,120,90", str(ckpt),
+                                        tmp_path / "out.pt"))  # fmt: skip
+    assert Clock.parse(config.clock) == clock and config.real_holdout >= 0.3
+    assert all(getattr(config, k) == v for k, v in CLOCKED_WINDOWS.items())
+    paper = adapt_config(AdaptSettings([str(rec)], None, "snn6", tmp_path / "out2.pt"))
+    assert Clock.parse(paper.clock).is_paper and paper.window_ms == 100
