@@ -100,3 +100,20 @@ def test_an_unknown_name_lists_the_bundled_ones(spec, says) -> None:
     message = str(info.value)
     assert "\n" not in message and message.startswith(f"--init {spec}: {says}")
     assert message.endswith(f"one of: {', '.join(bundled_names())}.")
+
+
+def test_snn6_real_is_the_shipped_weights_on_the_event_clock_and_sensor_pixels() -> None:
+    """The card says `snn6-real` is `snn6` untrained further: the same weights, run on the
+    event clock it names, reading the sensor's own pixels."""
+    import torch
+
+    from spikegyro.events.clock import Clock
+    from spikegyro.pretrained import resolve_checkpoint
+
+    real = torch.load(resolve_checkpoint("snn6-real"), weights_only=False)
+    base = torch.load(resolve_checkpoint("snn6"), weights_only=False)
+    assert real["state_dict"].keys() == base["state_dict"].keys()
+    weights = base["state_dict"]
+    assert all(torch.equal(real["state_dict"][k], weights[k]) for k in weights)
+    assert Clock.from_dict(real["input"]["clock"]) == Clock.parse("events:1000:1-20")
+    assert real["input"]["pixels"] == "sensor" and "clock" not in base["input"]
