@@ -730,9 +730,10 @@ def plot_against_gyro(path: Path, table: np.ndarray, t0_us: int, label: str = "S
 
 
 SNN_REAL_DATA_NOTE = (
-    "note: on real cameras the shipped SNN-6 is not yet accurate (mean error 31 deg/s on a "
-    "steady 5 deg/s pan, translBoxes; roll of the wrong sign on ECD shapes; see BENCHMARKS.md): "
-    "use --method cmax for real recordings."
+    "note: on real cameras the SNN is not yet accurate (the shipped snn6: 31 deg/s mean error on "
+    "a steady 5 deg/s pan, translBoxes; --checkpoint snn6-real, on the event clock: 3.4, below "
+    "omega = 0's 5.0, but 17 deg/s on a real roll; see BENCHMARKS.md): use --method cmax for "
+    "real recordings."
 )
 """The line ``predict`` prints when the network runs on a recording that is not simulated."""
 
