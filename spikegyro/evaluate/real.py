@@ -76,7 +76,7 @@ from spikegyro.events.imu import (
 from spikegyro.events.io import atomic_dir, read_gyro, read_recording
 from spikegyro.events.windows import BIN_US, bin_means, event_windows, time_windows
 from spikegyro.pretrained import resolve_checkpoint
-from spikegyro.stream.clocked import ClockedPredictor, hold_on_grid
+from spikegyro.stream.clocked import hold_on_grid
 from spikegyro.stream.engine import load_engine
 from spikegyro.stream.model import DEFAULT_CHECKPOINT
 from spikegyro.stream.predict import (
@@ -159,20 +159,16 @@ def _snn_per_ms(
     payload = {**payload, "input": spec}
     mapper = event_mapper(events.sensor_size, spec, calibration, source)
     predictor = clocked_predictor(engine, spec, t0)
-    stamps, outputs = [], []
+    parts = []
     for k in range(0, steps, SNN_CHUNK_MS):
         chunk = events.slice_time(t0 + k * BIN_US, t0 + (k + SNN_CHUNK_MS) * BIN_US)
-        for out, part in zip((stamps, outputs), predictor.push(mapper(chunk)), strict=True):
-            out.append(part)
+        parts.append(predictor.push(mapper(chunk)))
         progress(min(k + SNN_CHUNK_MS, steps), steps)
-    for out, part in zip((stamps, outputs), predictor.finish(t0 + steps * BIN_US), strict=True):
-        out.append(part)
-    omega = np.concatenate(outputs)
-    if isinstance(predictor, ClockedPredictor):  # steps of their own: held per ms
-        grid = t0 + BIN_US * np.arange(1, steps + 1)
-        omega = hold_on_grid(np.concatenate(stamps), omega, grid)
-    if omega.shape[0] != steps:
-        raise RuntimeError(f"SNN gave {omega.shape[0]} steps, expected {steps}")
+    parts.append(predictor.finish(t0 + steps * BIN_US))
+    # 1 ms bins are stamped on the grid itself; event-clock steps are held until the next
+    grid = t0 + BIN_US * np.arange(1, steps + 1)
+    stamps, omega = (np.concatenate([p[i] for p in parts]) for i in (0, 1))
+    omega = hold_on_grid(stamps, omega, grid)
     return omega * output_gain(spec, calibration), payload
 
 

@@ -44,7 +44,7 @@ class ClockedPredictor:
     """
 
     def __init__(self, inner: _Bins, clock: Clock, t0_us: int) -> None:
-        self.inner, self.clock = inner, clock
+        self.inner = inner
         self._clock = EventClock(clock, t0_us)
         self.label = f"{inner.label}; {clock.label}"
         self.steps = 0

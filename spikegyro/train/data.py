@@ -638,12 +638,9 @@ class FileSource:
         if not self.clock.is_paper:
             return draw_clocked(lambda: self._sequence(rng), self.window_ms, self.clock, rng,
                                 index)  # fmt: skip
-        path = self.files[int(rng.integers(len(self.files)))]
-        file = sequence_index(path)
-        sequence = Recording(EventArray.empty(*file.sensor), file.gyro, file.attrs)
+        sequence, read, path = self._sequence(rng)
         start = random_start(sequence, self.window_ms, rng, path)
-        end = start + self.window_ms * BIN_US
-        events = read_hdf5_span(path, start, end, file)
+        events = read(start, start + self.window_ms * BIN_US)
         return window_at(replace(sequence, events=events), start, self.window_ms, source=path,
                          index=index)  # fmt: skip
 
