@@ -64,6 +64,27 @@ def test_live_stream_gives_the_files_estimates(tmp_path, monkeypatch, capsys):
 
 
 @needs_stream
+def test_live_snn_on_the_event_clock_gives_the_files_rows(tmp_path, monkeypatch, capsys):
+    """The network on the event clock, served over loopback in packets of 5 ms: its rows (one
+    per ms, each holding the latest step) are the file's, to the digit, wherever the packets
+    cut the steps."""
+    snn = ["--method", "snn", "--checkpoint", "snn6-real", "--intrinsics", "199", "199", "132",
+           "110"]  # fmt: skip
+    url = f"dv://127.0.0.1:{free_port()}"
+    server = serve(SHAPES, url)
+    cli_run(monkeypatch, capsys, "predict", url, *snn, "--out", str(tmp_path / "live.csv"))
+    server.join(10)
+    cli_run(monkeypatch, capsys, "predict", str(SHAPES), *snn, "--out", str(tmp_path / "file.csv"))
+    live, want = (read_predictions(tmp_path / f) for f in ("live.csv", "file.csv"))
+    assert "step_ms" in live and len(live["t_us"]) > 500  # 0.79 s, a row per ms
+    assert np.abs(live["omega"]).max() > 0 and len(np.unique(live["step_ms"])) > 10
+    n = len(live["t_us"])  # the live run stops at the stream's last event, the file at its end
+    assert np.array_equal(live["t_us"] - live["t_us"][0], want["t_us"][:n] - want["t_us"][0])
+    np.testing.assert_array_equal(live["omega"], want["omega"][:n])
+    np.testing.assert_array_equal(live["step_ms"], want["step_ms"][:n])
+
+
+@needs_stream
 def test_unix_socket_to_stdout_until_end(tmp_path, monkeypatch, capsys):
     url = f"dv://{tmp_path / 'dv.sock'}"
     server = serve(SHAPES, url, speed=4.0)
