@@ -1,14 +1,17 @@
-"""Lag of the live CMax estimate: a window's mean rate against ω at the window's end.
+"""Live CMax against offline CMax, each scored at its estimates' own timestamps.
 
     .venv/bin/python bench/cmax_lag.py --translboxes ../shared/real/rueckauer2016_translBoxes \
-        --sim-dir /tmp/cmax-lag [--sims slow demo] [--seconds 0.6]
+        --sim-dir /tmp/cmax-lag [--sims slow demo] [--seconds 0.6] [--accelerating]
 
 Streams each recording through :class:`~spikegyro.cmax.live.CMaxEstimator` at its defaults
-(100 Hz) twice in the same run: with ``accelerating=False`` (each estimate is the mean rate over
-its window) and ``accelerating=True`` (a rate changing linearly over the window, ω reported at
-the window's end). Every estimate is scored against the gyro interpolated at its own timestamp
-(from 50 ms on): per-axis mean absolute error and mean Euclidean error, deg/s, and CPU-seconds
-per second of events.
+(100 Hz, causal windows: each estimate uses only events up to its time) and runs the offline
+engine (:func:`~spikegyro.cmax.offline.estimate_offline`, windows centred on each estimate's
+time) over it, in the same run; ``--accelerating`` adds the live engine with
+``accelerating=True`` (a rate changing linearly over the window, ω reported at the window's
+end). Every estimate is scored against the gyro interpolated at its own timestamp (from 50 ms
+on): per-axis mean absolute error and mean Euclidean error, deg/s, the median age of the
+events behind it (the window's lag, ms) and CPU-seconds per second of events. The last line of
+each recording is the ratio of the live error to the offline one.
 
 Recordings: translBoxes (real DAVIS240C, its own gyro in the camera frame, whose +3.5 deg/s
 tilt and -1 deg/s pan bias from its README are subtracted), and two simulated DAVIS240C-like
@@ -32,6 +35,7 @@ import numpy as np
 
 from spikegyro.cmax.config import CMaxConfig
 from spikegyro.cmax.live import CMaxEstimator
+from spikegyro.cmax.offline import estimate_offline
 from spikegyro.cmax.problem import camera_from_attrs
 from spikegyro.events.calib import Calibration
 from spikegyro.events.io import read_recording, write_recording
@@ -54,20 +58,30 @@ def simulated(folder: Path, name: str):
     return read_recording(path)
 
 
-def score(events, camera, t_gyro, w_gyro, accelerating: bool) -> dict:
-    """One streaming run scored at each estimate's own timestamp (deg/s)."""
-    est = CMaxEstimator(camera, CMaxConfig(accelerating=accelerating))
+def run(engine: str, events, camera):
+    """Estimates of ``engine`` (live, accelerating, offline) over the events, and CPU-s."""
     c0 = time.process_time()
-    out = est.run(events)
-    cpu = time.process_time() - c0
+    if engine == "offline":
+        out = estimate_offline(events, camera)
+    else:
+        est = CMaxEstimator(camera, CMaxConfig(accelerating=engine == "accelerating"))
+        out = est.run(events)
+    return out, time.process_time() - c0
+
+
+def score(events, camera, t_gyro, w_gyro, engine: str) -> dict:
+    """One engine's estimates scored at each estimate's own timestamp (deg/s)."""
+    out, cpu = run(engine, events, camera)
     seconds = (int(events.t[-1]) - int(events.t[0])) / 1e6
-    ok = (out.t_us > est.t0_us + 50_000) & (out.t_us >= t_gyro[0]) & (out.t_us <= t_gyro[-1])
+    t0 = int(events.t[0]) // 1000 * 1000
+    ok = (out.t_us > t0 + 50_000) & (out.t_us >= t_gyro[0]) & (out.t_us <= t_gyro[-1])
     ref = np.column_stack([np.interp(out.t_us[ok], t_gyro, w_gyro[:, i]) for i in range(3)])
     err = np.degrees(out.omega[ok] - ref)
     return {
         "mae": np.abs(err).mean(axis=0),
         "euclid": float(np.linalg.norm(err, axis=1).mean()),
         "speed": float(np.degrees(np.linalg.norm(ref, axis=1)).mean()),
+        "age": float(np.nanmedian(out.delay_us[ok])) / 1e3,
         "n": int(ok.sum()),
         "cpu": cpu / seconds,
     }
@@ -93,19 +107,20 @@ def main() -> None:
     parser.add_argument("--sim-dir", type=Path, help="Folder for the simulated recordings.")
     parser.add_argument("--sims", nargs="+", default=list(SIMULATED), choices=list(SIMULATED))
     parser.add_argument("--seconds", type=float, default=0.0, help="Score only this long (s).")
+    parser.add_argument("--accelerating", action="store_true", help="Also accelerating=True.")
     args = parser.parse_args()
-    print("recording     |gyro|  model         n   tilt   pan  roll  (MAE)  Euclid  CPU-s/s")
+    engines = ["live"] + (["accelerating"] if args.accelerating else []) + ["offline"]
+    print("recording     |gyro|  engine          n   tilt   pan  roll  Euclid  age ms  CPU-s/s")
     for name, events, camera, t_gyro, w_gyro in recordings(args):
         if args.seconds > 0:
             events = events.slice_time(int(events.t[0]), int(events.t[0] + args.seconds * 1e6))
-        rows = {a: score(events, camera, t_gyro, w_gyro, a) for a in (False, True)}
-        for accelerating, r in rows.items():
-            model = "end of window" if accelerating else "mean rate"
+        rows = {e: score(events, camera, t_gyro, w_gyro, e) for e in engines}
+        for engine, r in rows.items():
             tilt, pan, roll = r["mae"]
-            print(f"{name:13s} {r['speed']:5.1f}  {model:13s} {r['n']:4d} {tilt:5.2f} {pan:5.2f} "
-                  f"{roll:5.2f}        {r['euclid']:6.2f}  {r['cpu']:6.2f}")  # fmt: skip
-        print(f"{name:13s} Euclidean error ratio (end / mean): "
-              f"{rows[True]['euclid'] / rows[False]['euclid']:.3f}")  # fmt: skip
+            print(f"{name:13s} {r['speed']:5.1f}  {engine:13s} {r['n']:4d} {tilt:5.2f} {pan:5.2f} "
+                  f"{roll:5.2f}  {r['euclid']:6.2f}  {r['age']:6.1f}  {r['cpu']:6.2f}")  # fmt: skip
+        print(f"{name:13s} live / offline Euclidean error: "
+              f"{rows['live']['euclid'] / rows['offline']['euclid']:.2f}")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -156,7 +156,12 @@ def test_estimator_is_causal_and_batch_invariant() -> None:
 
 def test_background_searches_and_tests_do_not_depend_on_their_timing(monkeypatch) -> None:
     events, _, second = _two_rotations()
-    config = CMaxConfig(search_every_s=0.04, search_lag_ms=30.0, collapse_gap_ms=0.0)
+    config = CMaxConfig(
+        window=WindowPolicy(min_events=2000),  # the point tracks hold 2,700 events per 0.1 s
+        search_every_s=0.04,
+        search_lag_ms=30.0,
+        collapse_gap_ms=0.0,
+    )
     ref = CMaxEstimator(CAMERA, config, t0_us=0)
     expected = ref.run(events, batch_us=5000)
     assert ref.searches >= 3  # the first one and at least two on the worker
@@ -302,7 +307,9 @@ def test_predict_cmax_on_a_simulated_roll(simulated_roll, tmp_path) -> None:
     assert (np.diff(pred["t_us"]) == 10_000).all() and len(pred["t_us"]) >= 30
     scored = pred["t_us"] >= pred["t_us"][0] + 100_000
     err = np.degrees(np.abs(pred["omega"][scored] - pred["gyro_omega"][scored])).mean(axis=0)
-    assert (err < 3.0).all(), err
+    # 14,000 events/s: windows reach their 300 ms bound before 8,000 events, and their mean
+    # rate lags a roll that changes by up to 40 deg/s² by up to 6 deg/s (2.9 at 3,000 events).
+    assert (err[:2] < 1.5).all() and err[2] < 4.5, err
     assert "intrinsics from the file" in done.output and "latency" in done.output
 
 

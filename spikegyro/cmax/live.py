@@ -315,7 +315,7 @@ class CMaxEstimator:
         """The ``ill_posed`` bits of estimate ω of ``problem``: too few events (``count``,
         hot pixels included), too little motion over ``span_us``, not one rotation."""
         config, flags = self.config, 0
-        if count < config.window.min_events and config.window.fixed_events <= 0:
+        if count < config.window.posed_events and config.window.fixed_events <= 0:
             flags |= ILL_FEW_EVENTS
         moved = self._speed(omega) * span_us * 1e-6
         if moved < config.min_motion_px:
@@ -365,14 +365,19 @@ class CMaxEstimator:
         index, span, count = window
         policy = self.config.window
         adaptive = policy.fixed_ms <= 0 and policy.fixed_events <= 0
-        if wait and self._omega is None and adaptive and count < policy.min_events:
+        if wait and self._omega is None and adaptive and count < policy.posed_events:
             return None  # the first estimate waits for a well-posed window: tracking starts there
         buf, config = self._buffer, self.config
-        dt = (t_us - buf.t[index]) * 1e-6
+        age = (t_us - buf.t[index]) * 1e-6
+        delay = float(age.mean())
         width, height = self._sensor
+        # Warped to the events' mean time, not to t_us: warping every event to the window's
+        # end moves the oldest ones a whole window's motion, where spurious maxima appear
+        # (a sparse window's ω found at several times the true rate); the mean rate is the
+        # same either way.
         problem = Problem(
-            buf.bx[index], buf.by[index], dt, np.ones(len(index)), self._intrinsics, width, height,
-            self._base,
+            buf.bx[index], buf.by[index], age - delay, np.ones(len(index)), self._intrinsics,
+            width, height, self._base,
         )  # fmt: skip
         if searching:
             self._last_search_us, self.searches = t_us, self.searches + 1
@@ -392,10 +397,9 @@ class CMaxEstimator:
         gain = found.contrast / flat if flat > 0 else math.nan
         flags = self._flags(problem, omega, count, span, t_us)
         self._update_doubt(gain, flags)
-        delay = float(dt.mean()) * 1e6
         if config.accelerating:
-            omega = self._at_end(t_us, span, omega, delay * 1e-6)
-        return t_us, omega, count, span, delay, gain, flags
+            omega = self._at_end(t_us, span, omega, delay)
+        return t_us, omega, count, span, delay * 1e6, gain, flags
 
     def _track(
         self, problem: Problem, omega: np.ndarray, inv_hessian: np.ndarray | None

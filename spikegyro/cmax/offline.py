@@ -226,7 +226,12 @@ class _Engine:
         half_us = max(min(half_us, edge_us), local_us)
         a = int(np.searchsorted(rays.t, t_us - half_us, side="left"))
         b = int(np.searchsorted(rays.t, t_us + half_us, side="right"))
-        check = self._problem(_thinned(np.arange(a, b), base.max_events), t_us)
+        # Judged on the events around the window, not on its own: the window's ω was fitted to
+        # its own events, noise included, so on them it always looks sharper.
+        flanks = np.r_[np.arange(a, first), np.arange(last + 1, b)]
+        if len(flanks) < max(base.min_events, 2):
+            flanks = np.arange(a, b)
+        check = self._problem(_thinned(flanks, base.max_events), t_us)
         whole = check.contrast(self.whole, 1, base.sigma_px)[0]
         return whole >= check.contrast(omega, 1, base.sigma_px)[0]
 

@@ -264,7 +264,7 @@ def estimate_window(
 
 def estimate_whole(events: EventArray, camera: Intrinsics | None = None) -> np.ndarray:
     """One ω (3,) rad/s from all of ``events`` (none thinned, default settings), standing for
-    the whole span, stamped at its last event: ``spikegyro baseline cmax --whole``."""
-    config = CMaxConfig(max_events=max(len(events), 1))
-    t_ref = int(events.t[-1]) if len(events) else None
-    return estimate_window(events, camera, config, t_ref_us=t_ref)
+    the whole span: ``spikegyro baseline cmax --whole``. The events are warped to the middle
+    of the span (its mean rate is the same at any reference time, and warping to one end moves
+    the far end's events a whole span's motion, where sparse events find spurious maxima)."""
+    return estimate_window(events, camera, CMaxConfig(max_events=max(len(events), 1)))

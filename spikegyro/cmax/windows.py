@@ -5,7 +5,8 @@ control loop must. The window ``W`` (:class:`WindowPolicy`) adapts to the event 
 the motion so that each estimate is well posed:
 
 - enough events: at least ``min_events`` (a window of 1,500 events cannot pin a slow rotation
-  down);
+  down, and the estimate's noise falls with the events behind it: 8,000 by default, chosen by
+  the error at each estimate's own time, ``bench/cmax_lag.py``);
 - enough image motion: the previous estimate must move edges by ``target_px`` pixels over the
   window (a slow pan needs a long window, a fast roll a short one), so the blur that the warp
   undoes is always a few pixels, the regime where the contrast has a sharp, well-scaled peak;
@@ -52,6 +53,10 @@ class WindowPolicy:
     Attributes:
         min_events: adaptive windows hold at least this many events (when the last ``max_ms``
             have that many).
+        well_posed_events: an adaptive window holding fewer events than this, or than
+            ``min_events`` where that is fewer (it reached ``max_ms`` first), gives an estimate
+            flagged ill-posed (``ill_posed`` bit 1), and a stream's first estimate waits for
+            that many.
         target_px: ... and are long enough that the previous estimate moves edges this far, px.
         min_ms, max_ms: bounds of adaptive windows, ms.
         fixed_ms: > 0: every window lasts this long instead (ms).
@@ -61,13 +66,20 @@ class WindowPolicy:
             moves edges enough to be found.
     """
 
-    min_events: int = 3000
+    min_events: int = 8000
+    well_posed_events: int = 3000
     target_px: float = 10.0
     min_ms: float = 2.0
     max_ms: float = 300.0
     fixed_ms: float = 0.0
     fixed_events: int = 0
     search_ms: float = 30.0
+
+    @property
+    def posed_events(self) -> int:
+        """Events that make an adaptive window well posed: ``well_posed_events``, or
+        ``min_events`` where that is fewer."""
+        return min(self.min_events, self.well_posed_events)
 
     @property
     def horizon_us(self) -> int:
