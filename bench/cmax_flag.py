@@ -48,7 +48,7 @@ from spikegyro.stream.estimator import ILL_NOT_ONE_ROTATION
 
 # The composed recordings are the tests' own (one definition of each scene).
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from scene_helpers import scenes  # noqa: E402
+from scene_helpers import scenes
 
 DAVIS = (245.0, 245.0, 120.0, 90.0)  # translBoxes' README: rot_bars is the same camera
 SIMULATED = {

@@ -2,28 +2,44 @@
 
 Contrast maximization always returns the ω that sharpens the events best, also where the scene
 itself moves (a static camera watching people walk) or where two parts of the image move
-differently. A camera's own rotation moves every part of the image the same way, so the events
-of any part are sharpened by the same ω. The test splits the window's events into halves, by
-ray x (left, right) and by ray y (top, bottom), finds each half's own best ω (refined from the
-window's estimate and from 0, on a coarser image), and asks how much of that half's best
-contrast the window's ω achieves:
+differently. A camera's own rotation moves every textured part of the view, and every part the
+way ω says. The test asks four questions of a window and its estimate ω; any "no" is bit 4.
 
-    agreement(A) = C_A(ω) / C_A(ω_A)
+1. Does ω sharpen the window, and each half of it, more than the reverse rotation -ω does?
+   The halves split the events at their median ray x (left, right) and at their median ray y
+   (top, bottom); the ratio is the contrast at ω over that at -ω. Where events do not move
+   with ω (a still object's flicker, sensor noise, a part of the scene that moves otherwise),
+   ω and -ω move them by the same distance in opposite directions and blur them alike: the
+   ratio's null is 1 whatever the texture, the event count or the image scale, where a gain
+   over ω = 0 has no such null (ω = 0 leaves votes where they fell). Under a rotation, ω
+   undoes the blur that -ω doubles: 1.05 to 2 for halves of real and simulated rotations on
+   the coarser image the halves are judged on, 1.25 to 3 for whole windows. Ratios under
+   ``min_reversal`` (1.05) say no; so does a whole window that ω sharpens by less than
+   ``min_gain`` over ω = 0.
+2. Does each half agree with ω? Each half's own best ω (refined from the window's ω or from 0,
+   whichever sharpens it more, on a coarser image) is compared with the window's:
+   ``agreement(A) = C_A(ω) / C_A(ω_A)`` must reach ``min_agreement`` in every half that its own
+   rotation sharpens by ``min_gain`` (two rotations, one per half, leave one half well below its
+   own best). Halves' own estimates are not compared with each other: from half an image, roll
+   trades off against tilt or pan, so they scatter along that direction even under one rotation.
+3. Are the events spread over the view, or one compact object? The core of the events (the
+   ``core`` share nearest their median) spans an ellipse (:func:`spread`); one covering less
+   than ``max_area`` of the view and not a line (narrower than ``min_width`` of its length)
+   is one object moving before a still camera: a rotation lights up the textured view beyond
+   one blob. A line is exempt: one straight edge looks the same whether it moves or the camera
+   pans past it, and rotating cameras often see one long edge.
+4. Did something enter a quiet view? Within ``quiet_ms`` after the view was quiet (too few
+   events for a well-posed window), events covering less than ``max_area`` of the view, a line
+   included, are an object entering a still camera's view (a bar swept across it): a rotating
+   camera had shown something before. Only the live engine remembers the quiet view.
 
-with ``C_A`` the contrast of half A's events (1: the window's rotation sharpens A as well as
-A's own does). Under one rotation every half's best is the window's ω up to noise; under two,
-the window's ω is a compromise that leaves at least one half well below its own best. (Halves'
-own estimates are not compared with each other: from half an image, roll trades off against
-tilt or pan, so they scatter along that direction even under one rotation.) Halves whose own
-sharpening is too weak to judge (best gain over ω = 0 below ``min_gain``) are not compared.
-The test also says no where ω sharpens the whole window weakly (gain under ``min_gain``) or
-leaves a half with enough events almost unsharpened (gain under ``min_half_gain``): a camera's
-rotation sharpens every textured part of the image, while objects moving before a still camera
-leave the rest of it as noise. A weak gain of an estimate that moves edges by only a few pixels
-over its window (a stream's first windows, a slow pan) is another matter: so little motion
-blurs little, so it sharpens little under any rotation, and :func:`rotation_flags` says that the
-motion is too little to tell from none (``ill_posed`` bit 2) rather than that one rotation does
-not explain it (bit 4).
+A weak sharpening (question 1) of an estimate that moves edges by only a few pixels over its
+window (a stream's first windows, a slow pan) is another matter: so little motion blurs little
+under any rotation, and :func:`rotation_flags` says that the motion is too little to tell from
+none (``ill_posed`` bit 2) rather than that one rotation does not explain it (bit 4). What the
+test cannot tell apart: a rotating camera whose view holds one compact textured object and
+nothing else (it reads as an object before a still camera), and a lone edge sweeping a view
+that was never quiet (it reads as a pan).
 """
 
 from __future__ import annotations
