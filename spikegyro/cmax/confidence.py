@@ -88,12 +88,11 @@ def spread(problem: Problem, core: float = 0.9) -> tuple[float, float]:
 
     The core of the events, the ``core`` share of them nearest their median pixel (the rest:
     sensor noise scattered over the view), is summarized by the covariance of its pixel
-    positions (rays projected with the pinhole). ``area``: the area of that covariance's
-    ellipse over that of events spread evenly over the sensor (``width * height / 12``
-    squared, px²): about the share of the view for a blob, and 0.87 for a view lit evenly
-    (its core leaves out the far corners).
-    ``width``: the ellipse's minor axis over its major axis (1: round; near 0: a line).
-    NaN for fewer than 3 events.
+    positions (rays projected with the pinhole). ``area``: the square root of its determinant
+    (px²) over that of events spread evenly over the sensor (``width * height / 12``): about
+    the share of the view that a blob covers, 0.87 for a view lit evenly (the core leaves out
+    its far corners). ``width``: the covariance ellipse's minor axis over its major axis (1:
+    round; near 0: a line). NaN for fewer than 3 events.
     """
     if len(problem) < 3:
         return math.nan, math.nan
