@@ -2,28 +2,44 @@
 
 Contrast maximization always returns the ω that sharpens the events best, also where the scene
 itself moves (a static camera watching people walk) or where two parts of the image move
-differently. A camera's own rotation moves every part of the image the same way, so the events
-of any part are sharpened by the same ω. The test splits the window's events into halves, by
-ray x (left, right) and by ray y (top, bottom), finds each half's own best ω (refined from the
-window's estimate and from 0, on a coarser image), and asks how much of that half's best
-contrast the window's ω achieves:
+differently. A camera's own rotation moves every textured part of the view, and every part the
+way ω says. The test asks four questions of a window and its estimate ω; any "no" is bit 4.
 
-    agreement(A) = C_A(ω) / C_A(ω_A)
+1. Does ω sharpen the window, and each half of it, more than the reverse rotation -ω does?
+   The halves split the events at their median ray x (left, right) and at their median ray y
+   (top, bottom); the ratio is the contrast at ω over that at -ω. Where events do not move
+   with ω (a still object's flicker, sensor noise, a part of the scene that moves otherwise),
+   ω and -ω move them by the same distance in opposite directions and blur them alike: the
+   ratio's null is 1 whatever the texture, the event count or the image scale, where a gain
+   over ω = 0 has no such null (ω = 0 leaves votes where they fell). Under a rotation, ω
+   undoes the blur that -ω doubles: 1.05 to 2 for halves of real and simulated rotations on
+   the coarser image the halves are judged on, 1.25 to 3 for whole windows. Ratios under
+   ``min_reversal`` (1.05) say no; so does a whole window that ω sharpens by less than
+   ``min_gain`` over ω = 0.
+2. Does each half agree with ω? Each half's own best ω (refined from the window's ω or from 0,
+   whichever sharpens it more, on a coarser image) is compared with the window's:
+   ``agreement(A) = C_A(ω) / C_A(ω_A)`` must reach ``min_agreement`` in every half that its own
+   rotation sharpens by ``min_gain`` (two rotations, one per half, leave one half well below its
+   own best). Halves' own estimates are not compared with each other: from half an image, roll
+   trades off against tilt or pan, so they scatter along that direction even under one rotation.
+3. Are the events spread over the view, or one compact object? The core of the events (the
+   ``core`` share nearest their median) spans an ellipse (:func:`spread`); one covering less
+   than ``max_area`` of the view and not a line (narrower than ``min_width`` of its length)
+   is one object moving before a still camera: a rotation lights up the textured view beyond
+   one blob. A line is exempt: one straight edge looks the same whether it moves or the camera
+   pans past it, and rotating cameras often see one long edge.
+4. Did something enter a quiet view? Within ``quiet_ms`` after the view was quiet (too few
+   events for a well-posed window), events covering less than ``max_area`` of the view, a line
+   included, are an object entering a still camera's view (a bar swept across it): a rotating
+   camera had shown something before. Only the live engine remembers the quiet view.
 
-with ``C_A`` the contrast of half A's events (1: the window's rotation sharpens A as well as
-A's own does). Under one rotation every half's best is the window's ω up to noise; under two,
-the window's ω is a compromise that leaves at least one half well below its own best. (Halves'
-own estimates are not compared with each other: from half an image, roll trades off against
-tilt or pan, so they scatter along that direction even under one rotation.) Halves whose own
-sharpening is too weak to judge (best gain over ω = 0 below ``min_gain``) are not compared.
-The test also says no where ω sharpens the whole window weakly (gain under ``min_gain``) or
-leaves a half with enough events almost unsharpened (gain under ``min_half_gain``): a camera's
-rotation sharpens every textured part of the image, while objects moving before a still camera
-leave the rest of it as noise. A weak gain of an estimate that moves edges by only a few pixels
-over its window (a stream's first windows, a slow pan) is another matter: so little motion
-blurs little, so it sharpens little under any rotation, and :func:`rotation_flags` says that the
-motion is too little to tell from none (``ill_posed`` bit 2) rather than that one rotation does
-not explain it (bit 4).
+A weak sharpening (question 1) of an estimate that moves edges by only a few pixels over its
+window (a stream's first windows, a slow pan) is another matter: so little motion blurs little
+under any rotation, and :func:`rotation_flags` says that the motion is too little to tell from
+none (``ill_posed`` bit 2) rather than that one rotation does not explain it (bit 4). What the
+test cannot tell apart: a rotating camera whose view holds one compact textured object and
+nothing else (it reads as an object before a still camera), and a lone edge sweeping a view
+that was never quiet (it reads as a pan).
 """
 
 from __future__ import annotations
@@ -47,16 +63,48 @@ class Agreement:
     Attributes:
         agreement: the lowest agreement over the judged halves (NaN: none judged).
         gain: the whole window's contrast at ω over that at ω = 0.
-        half_gain: the lowest such gain of a half with enough events (NaN: none).
+        reversal: the whole window's contrast at ω over that at -ω (see the module).
+        half_reversal: the lowest such ratio of a half with enough events (NaN: none).
         judged: how many halves were judged (0 to 4).
+        area: the share of the view that the events' core spreads over (:func:`spread`).
+        width: the core's width over its length (:func:`spread`).
+        compact: whether the core is one compact object (small ``area``, not a line).
         explains: the verdict: whether one rotation explains the events.
     """
 
     agreement: float
     gain: float
-    half_gain: float
+    reversal: float
+    half_reversal: float
     judged: int
+    area: float
+    width: float
+    compact: bool
     explains: bool
+
+
+def spread(problem: Problem, core: float = 0.9) -> tuple[float, float]:
+    """How far a window's events spread over the view: ``(area, width)``.
+
+    The core of the events, the ``core`` share of them nearest their median pixel (the rest:
+    sensor noise scattered over the view), is summarized by the covariance of its pixel
+    positions (rays projected with the pinhole). ``area``: the square root of its determinant
+    (px²) over that of events spread evenly over the sensor (``width * height / 12``): about
+    the share of the view that a blob covers, 0.87 for a view lit evenly (the core leaves out
+    its far corners). ``width``: the covariance ellipse's minor axis over its major axis (1:
+    round; near 0: a line). NaN for fewer than 3 events.
+    """
+    if len(problem) < 3:
+        return math.nan, math.nan
+    fx, fy, cx, cy = problem.intrinsics
+    u, v = fx * problem.bx + cx, fy * problem.by + cy
+    far = np.hypot(u - np.median(u), v - np.median(v))
+    near = far <= np.quantile(far, core)
+    small, large = np.linalg.eigvalsh(np.cov(u[near], v[near]))
+    small = max(float(small), 0.0)
+    even = problem.width * problem.height / 12.0  # sqrt(det) of an even spread over the sensor
+    width = math.sqrt(small / large) if large > 0 else math.nan
+    return math.sqrt(small * large) / even, width
 
 
 def _halves(problem: Problem) -> list[tuple[Problem, Problem]]:
@@ -74,10 +122,16 @@ def _select(problem: Problem, mask: np.ndarray) -> Problem:
     return replace(p, bx=p.bx[mask], by=p.by[mask], dt=p.dt[mask], weights=p.weights[mask])
 
 
+def _ratio(a: float, b: float) -> float:
+    """a / b, NaN where b is not positive (no votes left in the image)."""
+    return a / b if b > 0 else math.nan
+
+
 def _judge(
     a: Problem, b: Problem, omega: np.ndarray, config: CMaxConfig, test: OneRotationTest
-) -> list[float]:
-    """Agreements of halves ``a`` and ``b`` (each judged only where it shows structure)."""
+) -> list[tuple[float, float]]:
+    """``(agreement, reversal)`` of halves ``a`` and ``b`` with enough events; the agreement
+    NaN where the half shows no structure that its own rotation sharpens."""
     sigma, scale = config.sigma_px, test.scale
     out = []
     for half in (a, b):
@@ -85,14 +139,13 @@ def _judge(
         if len(half) < test.min_events or not zero > 0:
             continue
         at_omega = half.contrast(omega, scale, sigma)[0]
+        reversal = _ratio(at_omega, half.contrast(-omega, scale, sigma)[0])
         # Refined from ω or from 0, whichever sharpens the half more: a half that another
         # rotation moves may lie beyond ω's basin.
         start = omega if at_omega >= zero else 0 * omega
         best = refine(half, start, scale, config, test.iterations).contrast
-        if best < test.min_gain * zero:
-            out.append((math.nan, at_omega / zero))
-            continue
-        out.append((at_omega / best, at_omega / zero))
+        agreement = at_omega / best if best >= test.min_gain * zero else math.nan
+        out.append((agreement, reversal))
     return out
 
 
@@ -109,19 +162,27 @@ def rotation_agreement(
     rng = rng or np.random.default_rng(config.seed)
     omega = np.asarray(omega, dtype=np.float64)
     sub = problem.subset(2 * test.max_events, rng)
-    best = sub.contrast(omega, 1, config.sigma_px)[0]
-    zero = sub.contrast(np.zeros(3), 1, config.sigma_px)[0]
-    gain = best / zero if zero > 0 else math.nan
+    sigma = config.sigma_px
+    at_omega = sub.contrast(omega, 1, sigma)[0]
+    zero, back = (sub.contrast(w, 1, sigma)[0] for w in (np.zeros(3), -omega))
+    gain, reversal = _ratio(at_omega, zero), _ratio(at_omega, back)
     halves = [v for a, b in _halves(sub) for v in _judge(a, b, omega, config, test)]
     agreements = [a for a, _ in halves if math.isfinite(a)]
-    worst = min(agreements) if agreements else math.nan
-    half_gain = min((g for _, g in halves), default=math.nan)
+    worst = min(agreements, default=math.nan)
+    half_reversal = min((r for _, r in halves), default=math.nan)
+    area, width = spread(sub, test.core)
+    # One blob, not a line: an object before a still camera (a rotation lights up the view).
+    compact = area < test.max_area and width >= test.min_width
     explains = (
         not worst < test.min_agreement
-        and gain >= test.min_gain
-        and not half_gain < test.min_half_gain
+        and not compact
+        and not gain < test.min_gain
+        and not reversal < test.min_reversal
+        and not half_reversal < test.min_reversal
     )
-    return Agreement(worst, gain, half_gain, len(agreements), explains)
+    return Agreement(
+        worst, gain, reversal, half_reversal, len(agreements), area, width, compact, explains
+    )
 
 
 def one_rotation_explains(
@@ -161,20 +222,24 @@ def rotation_flags(
     moved_px: float,
     config: CMaxConfig,
     rng: np.random.Generator | None = None,
+    after_quiet: bool = False,
 ) -> int:
     """The ``ill_posed`` bits that the test gives an estimate ω (3,) rad/s of ``problem``
     which moves edges by ``moved_px`` (binned px) over its window: bit 4 where the halves
-    disagree, or where ω leaves the window or a half unsharpened; bit 2 instead where the halves
-    do not disagree and ω sharpens the whole window weakly while moving edges less than
-    ``judge_px`` (so little motion blurs little, so it sharpens little under any rotation: too
-    little to tell from none). 0 below ``min_motion_px``: bit 2 says so already."""
+    disagree, where the events are one compact object (or, ``after_quiet``, when the view was
+    quiet a moment ago, one object of any shape, a line included), or where ω sharpens the
+    window or a half of it hardly more than -ω does; but bit 2 instead for that last reason
+    alone where ω moves edges less than ``judge_px`` (so little motion blurs little either way:
+    too little to tell from none). 0 below ``min_motion_px``: bit 2 says so already."""
     test = config.one_rotation
     if test is None or moved_px < config.min_motion_px:
         return 0
     found = rotation_agreement(problem, omega, config, test, rng)
-    if found.explains:
+    # A lone object, a line included, lighting up a view that was quiet a moment ago: a still
+    # camera's view that something entered (a rotating camera had shown something before).
+    entered = after_quiet and found.area < test.max_area
+    if found.explains and not entered:
         return 0
-    disagree = found.agreement < test.min_agreement
-    if not disagree and found.gain < test.min_gain and moved_px < test.judge_px:
-        return ILL_LITTLE_MOTION
-    return ILL_NOT_ONE_ROTATION
+    if found.agreement < test.min_agreement or found.compact or entered:
+        return ILL_NOT_ONE_ROTATION
+    return ILL_NOT_ONE_ROTATION if moved_px >= test.judge_px else ILL_LITTLE_MOTION

@@ -20,13 +20,29 @@ class OneRotationTest:
     Attributes:
         min_agreement: the halves agree when each one's ω achieves at least this share of the
             other's own sharpening (see the module).
-        min_gain: a half (or the window) whose best contrast is under this times that of
-            ω = 0 shows no structure to judge by.
-        min_half_gain: every half with enough events must be sharpened by ω at least this much.
-        judge_px: a window's weak gain (under ``min_gain``) says that one rotation does not
-            explain its events only where ω moves edges at least this far over the window
-            (binned px); over less, a rotation sharpens little too, and a weak gain says that
-            the motion is too little to tell from none (``ill_posed`` bit 2).
+        min_gain: a window (or a half, by its own best rotation) whose contrast is under this
+            times that of ω = 0 shows no structure that the rotation sharpens (a half: none to
+            judge its agreement by).
+        min_reversal: ω must sharpen the window, and every half of it with enough events, at
+            least this much more than the reverse rotation -ω does (contrast at ω over that at
+            -ω): where nothing moves with ω, ω and -ω blur alike (ratio 1).
+        judge_px: where ω moves edges less than this over the window (binned px), a weak
+            sharpening alone (a gain under ``min_gain`` or a ratio under ``min_reversal``) says
+            that the motion is too little to tell from none (``ill_posed`` bit 2): so little
+            motion blurs little under any rotation.
+        max_area: the events' core (the ``core`` share of them nearest their median) spread over
+            less than this share of the view (the area of its covariance ellipse over that of
+            events spread evenly over the sensor) is one compact object: a camera's rotation
+            lights up the textured view beyond one blob (:func:`~spikegyro.cmax.confidence.spread`).
+        min_width: ... unless the core is a line, narrower than this share of its length: the
+            events of one straight edge look the same whether it moves or the camera pans past
+            it, and a rotating camera sees one long edge often (a bar, a door frame).
+        core: the share of a window's events, nearest their median, that ``max_area`` measures
+            (the rest: sensor noise scattered over the view).
+        quiet_ms: within this long (ms of event time) after the view was quiet (too few events
+            for a well-posed window: ``ill_posed`` bit 1, or none at all), events spread over
+            less than ``max_area`` are an object entering a still camera's view even when they
+            form a line (the live engine only).
         min_events: halves with fewer events are not judged.
         iterations: BFGS iterations refining each half's ω from the window's.
         max_events: events (random subsample) each half keeps at most (speed).
@@ -38,8 +54,12 @@ class OneRotationTest:
 
     min_agreement: float = 0.9
     min_gain: float = 1.05
-    min_half_gain: float = 1.015
+    min_reversal: float = 1.05
     judge_px: float = 5.0
+    max_area: float = 0.2
+    min_width: float = 0.3
+    core: float = 0.9
+    quiet_ms: float = 1000.0
     min_events: int = 500
     iterations: int = 1
     max_events: int = 1500

@@ -109,7 +109,7 @@ class CMaxEstimator:
         self.emitted = 0
         self.produced = 0
         self._seen = self._in_view = 0
-        self._verdict, self._tested_us = 0, _NEVER
+        self._verdict, self._tested_us, self._quiet_us = 0, _NEVER, _NEVER
         self.searches = 0
         self._search_job: tuple[Future, int] | None = None
         self._test_job: Future | None = None
@@ -317,6 +317,7 @@ class CMaxEstimator:
         config, flags = self.config, 0
         if count < config.window.posed_events and config.window.fixed_events <= 0:
             flags |= ILL_FEW_EVENTS
+            self._note_quiet(t_us)
         moved = self._speed(omega) * span_us * 1e-6
         if moved < config.min_motion_px:
             flags |= ILL_LITTLE_MOTION
@@ -325,7 +326,8 @@ class CMaxEstimator:
         test = config.one_rotation
         if test is not None and t_us - self._tested_us >= 1000 * test.every_ms:
             rng = self._job_rng(_TEST, t_us)
-            job = self._submit(_TEST, rotation_flags, problem, omega, moved, config, rng)
+            quiet = t_us - self._quiet_us <= 1000 * test.quiet_ms
+            job = self._submit(_TEST, rotation_flags, problem, omega, moved, config, rng, quiet)
             if self._tested_us == _NEVER:  # no verdict would cover the stream's start: wait
                 self._verdict = job.result()
             else:
@@ -334,6 +336,12 @@ class CMaxEstimator:
         if moved >= config.min_motion_px:
             flags |= self._verdict
         return flags
+
+    def _note_quiet(self, t_us: int) -> None:
+        """The window at ``t_us`` held too few events: the view is quiet, once the stream is
+        older than the longest window (before, the window was short only because it began)."""
+        if t_us - self.t0_us >= self.config.window.horizon_us:
+            self._quiet_us = t_us
 
     def _speed(self, omega: np.ndarray) -> float:
         """Image speed (px/s of the objective's binned image) under ω (rad/s)."""
@@ -361,11 +369,13 @@ class CMaxEstimator:
         searching = self._search_due(t_us)
         window = self._window(t_us, searching)
         if window is None:
+            self._note_quiet(t_us)
             return None
         index, span, count = window
         policy = self.config.window
         adaptive = policy.fixed_ms <= 0 and policy.fixed_events <= 0
         if wait and self._omega is None and adaptive and count < policy.posed_events:
+            self._note_quiet(t_us)
             return None  # the first estimate waits for a well-posed window: tracking starts there
         buf, config = self._buffer, self.config
         age = (t_us - buf.t[index]) * 1e-6

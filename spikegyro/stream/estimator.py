@@ -41,7 +41,8 @@ or by a few pixels that sharpen the events too little (contrast maximization's o
 test), so a rotation that small cannot be told from none."""
 ILL_NOT_ONE_ROTATION = 4
 """``Estimates.ill_posed`` bit: one rotation does not explain the window's events (parts of the
-image disagree on it, or nothing in them is sharpened by it): the scene itself may move."""
+image disagree on it, nothing in them is sharpened by it, or they are one object in a still
+view): the scene itself may move."""
 
 
 @dataclass(frozen=True)

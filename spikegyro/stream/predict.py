@@ -789,8 +789,9 @@ def summary_lines(result: StreamResult, out: str | os.PathLike, warm_up: bool = 
     if not_one:
         lines.append(
             f"warning: one rotation does not explain the events of {not_one:,} of "
-            f"{result.estimates:,} estimates (ill_posed bit 4: parts of the image disagree, or "
-            "the motion sharpens nothing): the scene itself may move; their ω is unreliable."
+            f"{result.estimates:,} estimates (ill_posed bit 4: parts of the image disagree, the "
+            "motion sharpens nothing, or the events are one object in a still view): the scene "
+            "itself may move; their ω is unreliable."
         )
     if result.stats:
         s = result.stats
