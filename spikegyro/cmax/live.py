@@ -52,6 +52,7 @@ from spikegyro.cmax.problem import (
     base_scale,
     camera_rays,
     default_camera,
+    dither,
 )
 from spikegyro.cmax.search import Refined, refine, search
 from spikegyro.cmax.windows import EventBuffer, HotPixels, Thinning, pixel_speed, rms_radius
@@ -215,13 +216,9 @@ class CMaxEstimator:
         self._in_view += int(ok.sum())
         if not ok.all():
             pix, bx, by, t = pix[ok], bx[ok], by[ok], t[ok]
-        # Dither each event within its pixel (once, so every estimate sees the same rays):
-        # undithered, the warp of ω = 0 leaves every vote whole on a pixel centre while any
-        # other ω splits votes bilinearly, so ω = 0 gets a spurious contrast peak that pulls
-        # thinned windows' estimates to zero.
-        jitter = self._dither.random((len(bx), 2)) - 0.5  # row by row: batching-independent
-        bx = bx + jitter[:, 0] / self._intrinsics[0]
-        by = by + jitter[:, 1] / self._intrinsics[1]
+        # Dithered once, so that every estimate sees the same rays.
+        fx, fy = self._intrinsics[:2]
+        bx, by = dither(bx, by, fx, fy, self._dither)  # row by row: batching-independent
         self._buffer.append(t, bx, by, pix)
 
     def _start(self, events: EventArray) -> None:

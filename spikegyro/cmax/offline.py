@@ -52,6 +52,7 @@ from spikegyro.cmax.problem import (
     Problem,
     base_scale,
     default_camera,
+    dither,
     event_rays,
 )
 from spikegyro.cmax.search import Refined, estimate_whole, search
@@ -121,12 +122,9 @@ def _rays(events: EventArray, camera: Intrinsics, config: CMaxConfig) -> _Rays:
     """Rays of ``events``, hot pixels (over the whole recording) and undefined rays dropped;
     dithered as in the live engine, so that ω = 0 gets no spurious peak."""
     keep, bx, by = event_rays(events, camera, config.hot_pixel_factor)
-    jitter = np.random.default_rng(config.seed + 1).random((int(keep.sum()), 2)) - 0.5
-    return _Rays(
-        events.t[keep].astype(np.int64),
-        bx[keep] + jitter[:, 0] / camera.fx,
-        by[keep] + jitter[:, 1] / camera.fy,
-    )
+    rng = np.random.default_rng(config.seed + 1)
+    bx, by = dither(bx[keep], by[keep], camera.fx, camera.fy, rng)
+    return _Rays(events.t[keep].astype(np.int64), bx, by)
 
 
 def _window(rays: _Rays, t_us: int, speed: float | None, config: OfflineConfig) -> np.ndarray:
