@@ -54,7 +54,15 @@ from spikegyro.cmax.problem import (
     default_camera,
 )
 from spikegyro.cmax.search import Refined, refine, search
-from spikegyro.cmax.windows import EventBuffer, HotPixels, Thinning, pixel_speed, rms_radius
+from spikegyro.cmax.windows import (
+    EventBuffer,
+    HotPixels,
+    Thinning,
+    event_rate,
+    pixel_speed,
+    predicted_speed,
+    rms_radius,
+)
 from spikegyro.events.core import EventArray
 from spikegyro.events.windows import BIN_US
 from spikegyro.stream.estimator import (
@@ -122,6 +130,9 @@ class CMaxEstimator:
         self._best_gain = 0.0
         self._collapse_us: int | None = None  # the last search after a collapse of the gain
         self._last_t: int | None = None
+        self._window_rate = 0.0  # events/s of the previous estimate's window
+        self._window_span_us = 0.0  # and its span, µs
+        self._gain = math.nan  # the previous estimate's contrast gain
         self._buffer = EventBuffer()
         self._thinning = Thinning(self.config.ingest_rate)
         self._hot: HotPixels | None = None
@@ -283,13 +294,28 @@ class CMaxEstimator:
         buf, config = self._buffer, self.config
         t = buf.times()
         i1 = int(np.searchsorted(t, t_us, side="right"))
-        speed = None
+        speed, policy = None, config.window
+        # An estimate that sharpened its window too little may have found no structure: a
+        # window sized by its rate alone (short where it is fast) may keep too few events to
+        # find any, and the next estimate is as weak: the next window lasts at least as long
+        # as a search's.
+        weak = not self._gain >= policy.min_gain
+        searching = searching or (weak and self._omega is not None)
         if self._omega is not None:  # in the objective's (binned) pixels
             speed = self._speed(self._omega)
-        i0 = config.window.start(t, i1, t_us, speed, searching)
+            if policy.rate_events > 0 and not weak:
+                # The recent rate over a share of the previous window's span (a few hundred
+                # events of a real sensor come in bursts), and over enough events.
+                recent = math.floor(t_us - policy.rate_share * self._window_span_us)
+                lo = min(int(np.searchsorted(t, recent, side="right")), i1 - policy.rate_events)
+                rate = event_rate(t, max(lo, 0), i1)
+                speed = predicted_speed(speed, rate, self._window_rate, policy.rate_rise)
+        i0 = policy.start(t, i1, t_us, speed, searching)
         index = self._kept(i0, i1)
         if index is None:
             return None
+        self._window_rate = event_rate(t, i0, i1)
+        self._window_span_us = float(t_us - t[i0]) if i1 > i0 else 0.0
         span = float(t_us - buf.t[index[0]])
         return index, span, i1 - i0
 
@@ -392,6 +418,7 @@ class CMaxEstimator:
         gain = found.contrast / flat if flat > 0 else math.nan
         flags = self._flags(problem, omega, count, span, t_us)
         self._update_doubt(gain, flags)
+        self._gain = gain
         delay = float(dt.mean()) * 1e6
         if config.accelerating:
             omega = self._at_end(t_us, span, omega, delay * 1e-6)

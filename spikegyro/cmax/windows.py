@@ -59,6 +59,15 @@ class WindowPolicy:
         search_ms: an adaptive window that starts a global search (no estimate to size it
             by, or one in doubt) lasts at least this long, so that a rotation of a few deg/s
             moves edges enough to be found.
+        min_gain: after an estimate whose contrast gain (its contrast over that of ω = 0) is
+            under this, the next window lasts at least ``search_ms`` too, and is not shortened
+            by the event rate.
+        rate_events: the recent event rate (:func:`event_rate`, :func:`predicted_speed`) is
+            measured over at least this many of the newest events (0: windows are not sized
+            by the event rate) ...
+        rate_share: ... and over at least this share of the previous window's span.
+        rate_rise: a recent event rate up to this many times that of the previous window is
+            taken for the texture in view, not for a faster motion (:func:`predicted_speed`).
     """
 
     min_events: int = 3000
@@ -68,6 +77,10 @@ class WindowPolicy:
     fixed_ms: float = 0.0
     fixed_events: int = 0
     search_ms: float = 30.0
+    min_gain: float = 1.05
+    rate_events: int = 500
+    rate_share: float = 0.25
+    rate_rise: float = 1.5
 
     @property
     def horizon_us(self) -> int:
@@ -104,6 +117,35 @@ class WindowPolicy:
             window_us = min(max(by_count, by_motion, 1000.0 * shortest), 1000.0 * self.max_ms)
         # An integer bound: a float one would convert every buffered time to float first.
         return int(np.searchsorted(t_us, math.floor(t_ref_us - window_us), side="right"))
+
+
+def event_rate(t_us: np.ndarray, i0: int, i1: int) -> float:
+    """Events per second of the sorted times ``t_us[i0:i1]`` (µs): 0 for fewer than 2 events.
+    Counted from the first event to the last, so that it does not depend on where the span
+    is cut."""
+    if i1 - i0 < 2:
+        return 0.0
+    return (i1 - i0 - 1) * 1e6 / max(float(t_us[i1 - 1] - t_us[i0]), 1.0)
+
+
+def predicted_speed(
+    speed_px_s: float, rate_now: float, rate_then: float, rate_rise: float = 1.5
+) -> float:
+    """Image speed (px/s) now from ``speed_px_s``, the previous estimate's, scaled by how much
+    the event rate has risen since beyond ``rate_rise``: by ``rate_now / (rate_rise *
+    rate_then)`` where that exceeds 1 (``rate_now``: the recent rate; ``rate_then``: that of
+    the previous estimate's window; events/s).
+
+    A scene's event rate grows with the speed of its edges, so a sharp rise means the motion
+    sped up since the previous estimate, and the window for the motion target must shrink now,
+    not an estimate later: a window sized by the old speed gives the old, slow rate again,
+    which sizes the next window, and the estimates lag an acceleration by many windows. The
+    rate also varies with the texture in view and comes in bursts; a rise within ``rate_rise``
+    is taken for that. A fall is left to the estimates: the event rate also falls where the
+    view turns to a plainer part of the scene."""
+    if rate_then > 0 and rate_now > rate_rise * rate_then:
+        return speed_px_s * rate_now / (rate_rise * rate_then)
+    return speed_px_s
 
 
 class EventBuffer:
