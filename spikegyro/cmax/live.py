@@ -303,7 +303,8 @@ class CMaxEstimator:
         searching = searching or (weak and self._omega is not None)
         if self._omega is not None:  # in the objective's (binned) pixels
             speed = self._speed(self._omega)
-            if policy.rate_events > 0 and not weak:
+            long = self._window_span_us >= 1000 * policy.rate_min_ms
+            if policy.rate_events > 0 and long and not weak:
                 # The recent rate over a share of the previous window's span (a few hundred
                 # events of a real sensor come in bursts), and over enough events.
                 recent = math.floor(t_us - policy.rate_share * self._window_span_us)
