@@ -9,7 +9,10 @@ the motion so that each estimate is well posed:
 - enough image motion: the previous estimate must move edges by ``target_px`` pixels over the
   window (a slow pan needs a long window, a fast roll a short one), so the blur that the warp
   undoes is always a few pixels, the regime where the contrast has a sharp, well-scaled peak;
-- bounded by ``min_ms`` and ``max_ms`` (the latency and the constant-ω assumption).
+- bounded by ``min_ms`` and ``max_ms`` (the latency and the constant-ω assumption);
+- shorter where the event rate has risen sharply since the previous window (the motion sped up
+  before an estimate could show it: :func:`predicted_speed`), and no shorter than a search's
+  after an estimate that found little structure.
 
 A window can also be fixed, by time (``fixed_ms``) or by count (``fixed_events``).
 

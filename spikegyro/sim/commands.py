@@ -143,7 +143,8 @@ _ACCEL_STD = typer.Option(
 _TRAJECTORY = typer.Option(
     "random",
     "--trajectory",
-    help="The motion: 'random' (the paper's random rotations, shaped by the options below) or "
+    help="The motion: 'random' (the paper's random rotations, shaped by --slow-share, "
+    "--omega-scale and --accel-std) or "
     "'flip' (a quadrotor's flip: a roll of --flip-deg degrees within --flip-ms milliseconds, "
     "centred in each sequence, over a small random tilt and pan; docs/simulator.md).",
 )
