@@ -10,7 +10,7 @@ activity while the camera hovers), ``--sequences`` of each (test split, indices 
 0), written once to ``--out`` and reused.
 
 The live engine (100 Hz) runs on each with its defaults and, in the same run, with windows
-sized by the estimates alone (``WindowPolicy(rate_events=0, min_gain=0)``: the engine before
+sized by the estimates alone (``WindowPolicy(rate_events=0)``: the engine before
 windows followed the event rate). Printed per flip and engine: the roll rate integrated over
 the estimates (held on the 1 ms grid until the next estimate, 0 before the first; and by the
 trapezoid over the estimates' times) against the known 360 deg, the mean absolute roll error
@@ -42,7 +42,7 @@ from spikegyro.sim.trajectory import TrajectoryConfig
 
 ENGINES = {
     "default": CMaxConfig(),
-    "by estimates": CMaxConfig(window=WindowPolicy(rate_events=0, min_gain=0.0)),
+    "by estimates": CMaxConfig(window=WindowPolicy(rate_events=0)),
 }
 
 

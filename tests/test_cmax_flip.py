@@ -81,7 +81,7 @@ def test_windows_sized_by_the_event_rate_are_what_follows_the_flip(flip_run) -> 
     rec, out = flip_run
     camera = camera_from_attrs(rec.attrs, rec.events.width, rec.events.height)
     end = int(rec.gyro.t[-1])
-    plain = CMaxConfig(window=WindowPolicy(rate_events=0, min_gain=0.0))
+    plain = CMaxConfig(window=WindowPolicy(rate_events=0))
     lagging = CMaxEstimator(camera, plain).run(rec.events, t_end_us=end)
     ours = abs(held_roll_deg(out.t_us, out.omega, end) - 360.0)
     theirs = abs(held_roll_deg(lagging.t_us, lagging.omega, end) - 360.0)

@@ -132,7 +132,6 @@ class CMaxEstimator:
         self._last_t: int | None = None
         self._window_rate = 0.0  # events/s of the previous estimate's window
         self._window_span_us = 0.0  # and its span, µs
-        self._gain = math.nan  # the previous estimate's contrast gain
         self._buffer = EventBuffer()
         self._thinning = Thinning(self.config.ingest_rate)
         self._hot: HotPixels | None = None
@@ -295,16 +294,10 @@ class CMaxEstimator:
         t = buf.times()
         i1 = int(np.searchsorted(t, t_us, side="right"))
         speed, policy = None, config.window
-        # An estimate that sharpened its window too little may have found no structure: a
-        # window sized by its rate alone (short where it is fast) may keep too few events to
-        # find any, and the next estimate is as weak: the next window lasts at least as long
-        # as a search's.
-        weak = not self._gain >= policy.min_gain
-        searching = searching or (weak and self._omega is not None)
         if self._omega is not None:  # in the objective's (binned) pixels
             speed = self._speed(self._omega)
             long = self._window_span_us >= 1000 * policy.rate_min_ms
-            if policy.rate_events > 0 and long and not weak:
+            if policy.rate_events > 0 and long:
                 # The recent rate over a share of the previous window's span (a few hundred
                 # events of a real sensor come in bursts), and over enough events.
                 recent = math.floor(t_us - policy.rate_share * self._window_span_us)
@@ -419,7 +412,6 @@ class CMaxEstimator:
         gain = found.contrast / flat if flat > 0 else math.nan
         flags = self._flags(problem, omega, count, span, t_us)
         self._update_doubt(gain, flags)
-        self._gain = gain
         delay = float(dt.mean()) * 1e6
         if config.accelerating:
             omega = self._at_end(t_us, span, omega, delay * 1e-6)

@@ -10,9 +10,8 @@ the motion so that each estimate is well posed:
   window (a slow pan needs a long window, a fast roll a short one), so the blur that the warp
   undoes is always a few pixels, the regime where the contrast has a sharp, well-scaled peak;
 - bounded by ``min_ms`` and ``max_ms`` (the latency and the constant-ω assumption);
-- shorter where the event rate has risen sharply since the previous window (the motion sped up
-  before an estimate could show it: :func:`predicted_speed`), and no shorter than a search's
-  after an estimate that found little structure.
+- shorter where the event rate has risen sharply since a long previous window (the motion sped
+  up before an estimate could show it: :func:`predicted_speed`).
 
 A window can also be fixed, by time (``fixed_ms``) or by count (``fixed_events``).
 
@@ -62,9 +61,6 @@ class WindowPolicy:
         search_ms: an adaptive window that starts a global search (no estimate to size it
             by, or one in doubt) lasts at least this long, so that a rotation of a few deg/s
             moves edges enough to be found.
-        min_gain: after an estimate whose contrast gain (its contrast over that of ω = 0) is
-            under this, the next window lasts at least ``search_ms`` too, and is not shortened
-            by the event rate.
         rate_events: the recent event rate (:func:`event_rate`, :func:`predicted_speed`) is
             measured over at least this many of the newest events (0: windows are not sized
             by the event rate) ...
@@ -85,7 +81,6 @@ class WindowPolicy:
     fixed_ms: float = 0.0
     fixed_events: int = 0
     search_ms: float = 30.0
-    min_gain: float = 1.05
     rate_events: int = 500
     rate_share: float = 0.25
     rate_rise: float = 1.5
