@@ -213,3 +213,25 @@ def test_cli_slow_share_makes_every_sequence_slow_and_is_recorded(tmp_path):
             assert speed.min() > 4.0 and speed.max() < 45.0
     res = CliRunner().invoke(app, [*args, *size, "--slow-speed", "40", "5"])
     assert isinstance(res.exception, InputError) and "--slow-speed" in str(res.exception)
+
+
+def test_cli_simulates_a_flip_and_rejects_bad_flips(tmp_path):
+    out = tmp_path / "flip"
+    args = ["simulate", "--out", str(out), "--sequences", "1", "--width", "32", "--height", "32"]
+    flip = ["--trajectory", "flip", "--duration-ms", "300", "--flip-ms", "200"]
+    res = CliRunner().invoke(app, [*args, *flip, "--flip-deg", "180"])
+    assert res.exit_code == 0, res.output
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["config"]["trajectory"]["kind"] == "flip"
+    gyro = read_recording(sequence_path(out, "train", 0)).gyro
+    roll = np.degrees(np.trapezoid(gyro.omega[:, 2], gyro.t / 1e6))
+    assert abs(roll - 180.0) < 0.5  # 1 kHz samples of a 180 deg flip in 200 ms
+    assert abs(np.degrees(gyro.omega[:, 2]).max() - 1800.0) < 1.0
+    for bad, option in [
+        (["--trajectory", "loop"], "--trajectory"),
+        ([*flip, "--flip-ms", "400"], "--flip-ms"),
+        ([*flip, "--flip-deg", "-90"], "--flip-deg"),
+    ]:
+        res = CliRunner().invoke(app, [*args[:2], str(tmp_path / "bad"), *args[3:], *bad])
+        assert isinstance(res.exception, InputError) and option in str(res.exception), bad
+        assert not (tmp_path / "bad" / "meta.json").exists()

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from spikegyro.sim import Trajectory, random_trajectory, so3_exp, so3_log
+from spikegyro.sim.trajectory import TrajectoryConfig, flip_trajectory
 
 
 def test_random_omega_is_zero_mean_equally_spread_uncorrelated_with_a_fast_tail():
@@ -107,3 +109,34 @@ def test_slow_rotation_drifts_by_its_stated_share_per_second():
     # the acceleration, N(0, (0.5 |w0|)^2) per axis at knots 0.1 s apart and linear between,
     # changes w by a fraction of itself of order 0.5 * 0.5 s: never more than a few times that
     assert 0.05 < np.median(ratios) < 0.5
+
+
+def test_a_flip_rolls_exactly_its_angle_peaking_at_twice_its_mean_rate():
+    config = TrajectoryConfig(kind="flip", flip_deg=360.0, flip_ms=600.0)
+    traj = flip_trajectory(0.8, config, drift=None)
+    t = np.linspace(0.0, 0.8, 80_001)
+    roll = np.degrees(traj.omega_at(t)[:, 2])
+    # The integral against the closed form (360 deg), on a grid much finer than the knots.
+    assert abs(np.trapezoid(roll, t) - 360.0) < 1e-3
+    assert abs(roll.max() - 1200.0) < 0.1 and abs(t[roll.argmax()] - 0.4) < 1e-3
+    assert roll[t < 0.1].max() < 1e-9 and roll[t > 0.7].max() < 1e-9  # centred, still outside
+    # The orientation, integrated independently of the rate's integral: half a turn at the
+    # middle, a whole turn (back where it started) at the end.
+    assert np.allclose(traj.rotation_at(0.4), np.diag([-1.0, -1.0, 1.0]), atol=1e-3)
+    assert np.abs(so3_log(traj.rotation_at(0.8))).max() < 1e-3
+
+
+def test_random_flips_draw_only_the_drift_and_the_start_orientation():
+    config = TrajectoryConfig(kind="flip", flip_drift_deg=10.0)
+    t = np.linspace(0.0, 1.0, 1001)
+    drifts = []
+    for seed in range(200):
+        w = np.degrees(random_trajectory(np.random.default_rng(seed), 1.0, config).omega_at(t))
+        assert abs(np.trapezoid(w[:, 2], t) - 360.0) < 0.01
+        assert np.ptp(w[:, :2], axis=0).max() < 1e-9  # constant tilt and pan
+        drifts.append(w[0, :2])
+    assert 8.0 < np.std(drifts) < 12.0
+    with pytest.raises(ValueError, match="at least that long"):
+        random_trajectory(np.random.default_rng(0), 0.5, config)
+    with pytest.raises(ValueError, match="must be one of"):
+        TrajectoryConfig(kind="loop").validate()

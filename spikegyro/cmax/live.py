@@ -55,7 +55,15 @@ from spikegyro.cmax.problem import (
     dither,
 )
 from spikegyro.cmax.search import Refined, refine, search
-from spikegyro.cmax.windows import EventBuffer, HotPixels, Thinning, pixel_speed, rms_radius
+from spikegyro.cmax.windows import (
+    EventBuffer,
+    HotPixels,
+    Thinning,
+    event_rate,
+    pixel_speed,
+    predicted_speed,
+    rms_radius,
+)
 from spikegyro.events.core import EventArray
 from spikegyro.events.windows import BIN_US
 from spikegyro.stream.estimator import (
@@ -123,6 +131,8 @@ class CMaxEstimator:
         self._best_gain = 0.0
         self._collapse_us: int | None = None  # the last search after a collapse of the gain
         self._last_t: int | None = None
+        self._window_rate = 0.0  # events/s of the previous estimate's window
+        self._window_span_us = 0.0  # and its span, µs
         self._buffer = EventBuffer()
         self._thinning = Thinning(self.config.ingest_rate)
         self._hot: HotPixels | None = None
@@ -280,13 +290,23 @@ class CMaxEstimator:
         buf, config = self._buffer, self.config
         t = buf.times()
         i1 = int(np.searchsorted(t, t_us, side="right"))
-        speed = None
+        speed, policy = None, config.window
         if self._omega is not None:  # in the objective's (binned) pixels
             speed = self._speed(self._omega)
-        i0 = config.window.start(t, i1, t_us, speed, searching)
+            long = self._window_span_us >= 1000 * policy.rate_min_ms
+            if policy.rate_events > 0 and long:
+                # The recent rate over a share of the previous window's span (a few hundred
+                # events of a real sensor come in bursts), and over enough events.
+                recent = math.floor(t_us - policy.rate_share * self._window_span_us)
+                lo = min(int(np.searchsorted(t, recent, side="right")), i1 - policy.rate_events)
+                rate = event_rate(t, max(lo, 0), i1)
+                speed = predicted_speed(speed, rate, self._window_rate, policy.rate_rise)
+        i0 = policy.start(t, i1, t_us, speed, searching)
         index = self._kept(i0, i1)
         if index is None:
             return None
+        self._window_rate = event_rate(t, i0, i1)
+        self._window_span_us = float(t_us - t[i0]) if i1 > i0 else 0.0
         span = float(t_us - buf.t[index[0]])
         return index, span, i1 - i0
 

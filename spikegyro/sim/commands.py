@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -24,7 +25,7 @@ from spikegyro.events.plot import plot_events_and_omega
 from spikegyro.sim.camera import Camera
 from spikegyro.sim.dataset import SimConfig, export_official, generate_dataset
 from spikegyro.sim.sensor import SENSOR_PRESETS, EventSimConfig, sensor_preset
-from spikegyro.sim.trajectory import TrajectoryConfig
+from spikegyro.sim.trajectory import TRAJECTORY_KINDS, TrajectoryConfig
 
 
 def _progress() -> Progress:
@@ -139,6 +140,25 @@ _ACCEL_STD = typer.Option(
     help="Their angular acceleration per axis, deg/s² (std).",
 )
 
+_TRAJECTORY = typer.Option(
+    "random",
+    "--trajectory",
+    help="The motion: 'random' (the paper's random rotations, shaped by --slow-share, "
+    "--omega-scale and --accel-std) or "
+    "'flip' (a quadrotor's flip: a roll of --flip-deg degrees within --flip-ms milliseconds, "
+    "centred in each sequence, over a small random tilt and pan; docs/simulator.md).",
+)
+_FLIP_DEG = typer.Option(360.0, "--flip-deg", help="The flip's roll angle, degrees.")
+_FLIP_MS = typer.Option(
+    600.0,
+    "--flip-ms",
+    help="How long the flip lasts, ms. Its roll rate peaks at twice the mean rate (1,200 deg/s "
+    "for 360 degrees in 600 ms). Give a --duration-ms at least this long.",
+)
+_FLIP_DRIFT = typer.Option(
+    10.0, "--flip-drift", help="The spread of the tilt and pan rates under the flip, deg/s."
+)
+
 
 def simulate_dataset(
     out: Path = typer.Option(..., "--out", help="Dataset folder (created; resumed if present)."),
@@ -157,6 +177,10 @@ def simulate_dataset(
     slow_speed: tuple[float, float] = _SLOW_SPEED,
     omega_scale: float = _OMEGA_SCALE,
     accel_std: float = _ACCEL_STD,
+    trajectory: str = _TRAJECTORY,
+    flip_deg: float = _FLIP_DEG,
+    flip_ms: float = _FLIP_MS,
+    flip_drift: float = _FLIP_DRIFT,
     contrast_mean: float = typer.Option(0.45, help="Mean contrast threshold (log units, > 0)."),
     contrast_std: float = typer.Option(0.05, min=0.0, help="Per-sequence threshold spread."),
     mismatch_std: float = typer.Option(0.03, min=0.0, help="Per-pixel threshold std."),
@@ -177,7 +201,14 @@ def simulate_dataset(
     config = SimConfig(
         duration_ms=duration_ms,
         camera=_camera(width, height, fx, fy, cx, cy),
-        trajectory=_trajectory(slow_share, slow_speed, omega_scale, accel_std),
+        trajectory=_trajectory(
+            slow_share,
+            slow_speed,
+            omega_scale,
+            accel_std,
+            (trajectory, flip_deg, flip_ms, flip_drift),
+            duration_ms,
+        ),
         contrast_mean=contrast_mean,
         contrast_std=contrast_std,
         events=EventSimConfig(
@@ -205,19 +236,38 @@ def simulate_dataset(
 
 
 def _trajectory(
-    slow_share: float, slow_speed: tuple[float, float], omega_scale: float, accel_std: float
+    slow_share: float,
+    slow_speed: tuple[float, float],
+    omega_scale: float,
+    accel_std: float,
+    flip: tuple[str, float, float, float],
+    duration_ms: int,
 ) -> TrajectoryConfig:
+    """The motion's settings; ``flip``: (--trajectory, --flip-deg, --flip-ms, --flip-drift)."""
+    kind, flip_deg, flip_ms, flip_drift = flip
     config = TrajectoryConfig(
         omega_scale_deg=omega_scale,
         accel_std_deg=accel_std,
         slow_share=slow_share,
         slow_min_deg=slow_speed[0],
         slow_max_deg=slow_speed[1],
+        kind=kind,
+        flip_deg=flip_deg,
+        flip_ms=flip_ms,
+        flip_drift_deg=flip_drift,
     )
+    if kind not in TRAJECTORY_KINDS:
+        raise InputError(f"--trajectory {kind}: use {' or '.join(TRAJECTORY_KINDS)}.")
     try:
         config.validate()
     except ValueError as exc:
-        raise InputError(f"--slow-speed: {exc}.") from None
+        option = "--flip-deg/--flip-ms/--flip-drift" if "flip" in str(exc) else "--slow-speed"
+        raise InputError(f"{option}: {exc}.") from None
+    if kind == "flip" and flip_ms > duration_ms:
+        raise InputError(
+            f"--flip-ms {flip_ms:g}: the flip must fit in the sequence; give --duration-ms "
+            f"{math.ceil(flip_ms)} or more (now {duration_ms})."
+        )
     return config
 
 

@@ -401,6 +401,9 @@ def _check_resume(out: Path, meta: dict[str, Any]) -> None:
     old = json.loads(path.read_text())
     # Datasets made before sensor presets existed were made with the ideal sensor.
     old_config = {"sensor": "ideal", **old.get("config", {})}
+    # ... and with the trajectory settings added since at their defaults (the random kind).
+    moves = {**asdict(TrajectoryConfig()), **old_config.get("trajectory", {})}
+    old_config["trajectory"] = moves
     if old_config != meta["config"] or old.get("seed") != meta["seed"]:
         raise InputError(
             f"{path}: this folder holds a dataset made with other options or another seed; "

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 DEG = np.pi / 180.0
+TRAJECTORY_KINDS = ("random", "flip")
+"""The kinds of :class:`TrajectoryConfig`: the paper's random rotations, or a quadrotor flip."""
 
 
 def hat(v: np.ndarray) -> np.ndarray:
@@ -193,6 +195,12 @@ class TrajectoryConfig:
     knots have a standard deviation of ``slow_accel_per_s`` times that speed per second, so ω
     drifts by about that share of itself in a second. With ``slow_share = 0`` (the default)
     nothing more is drawn, so the paper's sequences stay exactly as they were.
+
+    ``kind = "flip"`` draws a quadrotor's flip instead (:func:`flip_trajectory`): a roll of
+    ``flip_deg`` degrees within ``flip_ms`` milliseconds, centred in the sequence, its rate a
+    raised cosine peaking at ``2 flip_deg / flip_ms`` (1,200 deg/s for 360 deg in 600 ms), over
+    constant tilt and pan rates drawn from N(0, ``flip_drift_deg``²) deg/s (the hover's drift,
+    which also makes the scene fire before and after the flip). The other settings are unused.
     """
 
     omega_scale_deg: float = 107.0
@@ -203,9 +211,22 @@ class TrajectoryConfig:
     slow_min_deg: float = 5.0
     slow_max_deg: float = 100.0
     slow_accel_per_s: float = 0.5
+    kind: str = "random"
+    flip_deg: float = 360.0
+    flip_ms: float = 600.0
+    flip_drift_deg: float = 10.0
 
     def validate(self) -> None:
         """Raise ValueError naming the first setting out of its range."""
+        if self.kind not in TRAJECTORY_KINDS:
+            raise ValueError(
+                f"trajectory '{self.kind}' must be one of {', '.join(TRAJECTORY_KINDS)}"
+            )
+        if not (self.flip_ms > 0 and self.flip_deg > 0 and self.flip_drift_deg >= 0):
+            raise ValueError(
+                f"flip of {self.flip_deg} deg in {self.flip_ms} ms with a drift of "
+                f"{self.flip_drift_deg} deg/s: need an angle > 0, a time > 0 and a drift >= 0"
+            )
         if not 0.0 <= self.slow_share <= 1.0:
             raise ValueError(f"slow share {self.slow_share} must lie in [0, 1]")
         if not 0.0 < self.slow_min_deg <= self.slow_max_deg:
@@ -240,6 +261,10 @@ def random_trajectory(
     ``r0`` defaults to a uniformly random start orientation.
     """
     config = config or TrajectoryConfig()
+    if config.kind == "flip":
+        drift = rng.normal(0.0, config.flip_drift_deg * DEG, size=2)
+        r0 = random_rotation(rng) if r0 is None else r0
+        return flip_trajectory(duration_s, config, drift, r0)
     n_acc = int(np.ceil(duration_s / config.accel_knot_s)) + 1
     if config.slow_share > 0 and rng.random() < config.slow_share:
         log_lo, log_hi = np.log(config.slow_min_deg), np.log(config.slow_max_deg)
@@ -276,3 +301,42 @@ def _integrated(
     )
     omega = omega0 + np.stack([np.interp(t, fine, integral[:, k]) for k in range(3)], -1)
     return Trajectory(t_s=t, omega=omega, r0=r0, duration_s=duration_s)
+
+
+def flip_rate(t_s: np.ndarray, flip_deg: float, flip_s: float) -> np.ndarray:
+    """Roll rate (rad/s) of a flip of ``flip_deg`` degrees starting at t = 0 and lasting
+    ``flip_s`` seconds, at times ``t_s`` (s): the raised cosine
+    ``(flip_deg / flip_s) (1 - cos(2 pi t / flip_s))``, 0 outside [0, flip_s]. Its integral is
+    ``flip_deg``, its peak twice the mean rate, its acceleration at most ``pi`` times the peak
+    rate over ``flip_s``, and rate and acceleration are continuous."""
+    t = np.asarray(t_s, dtype=np.float64)
+    inside = (t >= 0.0) & (t <= flip_s)
+    rate = flip_deg * DEG / flip_s * (1.0 - np.cos(2.0 * np.pi * t / flip_s))
+    return np.where(inside, rate, 0.0)
+
+
+def flip_trajectory(
+    duration_s: float,
+    config: TrajectoryConfig,
+    drift: np.ndarray | None = None,
+    r0: np.ndarray | None = None,
+) -> Trajectory:
+    """A flip (see :class:`TrajectoryConfig`): a roll of ``config.flip_deg`` over
+    ``config.flip_ms``, centred in ``duration_s`` seconds, on top of constant tilt and pan
+    rates ``drift`` (2,) rad/s (default none), from orientation ``r0`` (default I).
+
+    The knots lie every ``config.knot_s`` (at most) on the flip and on its two ends, and ω is
+    linear between knots: the trapezoid rule on a whole period of a cosine over uniform knots is
+    exact, so the roll rate integrates to ``flip_deg`` to rounding.
+    """
+    flip_s = config.flip_ms / 1000.0
+    if flip_s > duration_s + 1e-9:
+        raise ValueError(f"a flip of {config.flip_ms:g} ms needs a sequence at least that long")
+    start = 0.5 * (duration_s - flip_s)
+    n = max(8, int(np.ceil(flip_s / config.knot_s)))
+    t = start + np.linspace(0.0, flip_s, n + 1)
+    t = np.unique(np.concatenate([[0.0], t, [duration_s]]))
+    omega = np.zeros((len(t), 3))
+    omega[:, :2] = np.zeros(2) if drift is None else np.asarray(drift, dtype=np.float64)
+    omega[:, 2] = flip_rate(t - start, config.flip_deg, flip_s)
+    return Trajectory(t_s=t, omega=omega, r0=np.eye(3) if r0 is None else r0, duration_s=duration_s)
