@@ -60,6 +60,9 @@ class WindowPolicy:
             flagged ill-posed (``ill_posed`` bit 1), and a stream's first estimate waits for
             that many.
         target_px: ... and are long enough that the previous estimate moves edges this far, px.
+        count_reach: ... but ``min_events`` lengthen a window to at most this many times what
+            ``target_px`` asks for: where the event rate falls (a fast rotation stopping), the
+            last ``min_events`` reach back into the earlier motion.
         min_ms, max_ms: bounds of adaptive windows, ms.
         fixed_ms: > 0: every window lasts this long instead (ms).
         fixed_events: > 0: every window holds the last this many events instead.
@@ -82,6 +85,7 @@ class WindowPolicy:
     min_events: int = 8000
     well_posed_events: int = 3000
     target_px: float = 10.0
+    count_reach: float = 3.0
     min_ms: float = 2.0
     max_ms: float = 300.0
     fixed_ms: float = 0.0
@@ -129,6 +133,7 @@ class WindowPolicy:
             by_motion = 0.0
             if speed_px_s is not None and speed_px_s > 0:
                 by_motion = 1e6 * self.target_px / speed_px_s
+                by_count = min(by_count, self.count_reach * by_motion)
             shortest = max(self.min_ms, self.search_ms if searching else 0.0)
             window_us = min(max(by_count, by_motion, 1000.0 * shortest), 1000.0 * self.max_ms)
         # An integer bound: a float one would convert every buffered time to float first.
