@@ -22,12 +22,15 @@ recording is shorter than one period):
 Local or whole (step 4). A short window's ω is noisy: a tenth of a pixel of blur over a window
 that moves edges by 8 px is 1 % of the rate. Where the rotation holds over the recording, the
 whole span's ω, from all its events over many more pixels of motion, is better; where it
-changes, the window's own is. A window's own ω always sharpens its own events best, noise
-included, so the two are compared over a centred window twice as long (or long enough that
-they move its edges ``resolve_px`` apart; symmetric about the estimate's time as far as the
-recording allows, where a rate that changes linearly averages to the rate at its centre), and
-the one that sharpens it more is the estimate. A window that spans almost the whole recording
-takes the whole span's ω: both are maxima of the contrast of the same events.
+changes, the window's own is. Two that move edges less than ``resolve_px`` apart over the
+whole recording cannot be told apart by its events, and the whole span's is taken. Otherwise
+they are compared on the events around the window, over a centred window twice as long (or
+long enough that they move its edges ``resolve_px`` apart; symmetric about the estimate's time
+as far as the recording allows, where a rate that changes linearly averages to the rate at its
+centre), its own events left out (the window's ω was fitted to them, noise included, and
+always sharpens them best), and the one that sharpens them more is the estimate. A window that
+spans almost the whole recording takes the whole span's ω: both are maxima of the contrast of
+the same events.
 
 :func:`estimate_offline` is the function over events in memory; :class:`OfflineCMax` wraps it
 in the estimator interface so that ``spikegyro predict --method cmax --offline`` writes, scores
@@ -217,6 +220,9 @@ class _Engine:
             return True
         local_us = float(max(t_us - rays.t[first], rays.t[last] - t_us))
         apart = self.speed(self.whole - omega)
+        if apart * float(rays.t[-1] - rays.t[0]) * 1e-6 < self.config.resolve_px:
+            # Even the whole span's events cannot tell the two apart: the one from more events.
+            return True
         half_us = max(0.5e6 * self.config.resolve_px / apart if apart else 0.0, 2.0 * local_us)
         # Symmetric about t where the recording allows: a window's mean rate is ω at its centre
         # (to first order), and a one-sided one would favour the whole span's over a change.
