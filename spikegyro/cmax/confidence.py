@@ -9,7 +9,8 @@ way ω says. The test asks four questions of a window and its estimate ω; any "
    The halves split the events at their median ray x (left, right) and at their median ray y
    (top, bottom); the ratio is the contrast at ω over that at -ω. Where events do not move
    with ω (a still object's flicker, sensor noise, a part of the scene that moves otherwise),
-   ω and -ω move them by the same distance in opposite directions and blur them alike: the
+   ω and -ω move them by the same distance in opposite directions and blur them alike (over
+   the events that both leave in view, so that the image's border favours neither): the
    ratio's null is 1 whatever the texture, the event count or the image scale, where a gain
    over ω = 0 has no such null (ω = 0 leaves votes where they fell). Under a rotation, ω
    undoes the blur that -ω doubles: 1.05 to 2 for halves of real and simulated rotations on
@@ -127,6 +128,16 @@ def _ratio(a: float, b: float) -> float:
     return a / b if b > 0 else math.nan
 
 
+def _reversal(problem: Problem, omega: np.ndarray, scale: int, sigma: float) -> float:
+    """Contrast at ω over that at -ω (rad/s) of the events that both leave in view. Events
+    that one of them warps off the image would count for the other only: near the image's
+    border the ratio would then depend on which way the events are warped, not on how
+    sharply (warped to a window's end, -ω pushes twice as many out as ω)."""
+    both = problem.in_view(omega, scale) & problem.in_view(-omega, scale)
+    kept = replace(problem, weights=problem.weights * both)
+    return _ratio(kept.contrast(omega, scale, sigma)[0], kept.contrast(-omega, scale, sigma)[0])
+
+
 def _judge(
     a: Problem, b: Problem, omega: np.ndarray, config: CMaxConfig, test: OneRotationTest
 ) -> list[tuple[float, float]]:
@@ -139,7 +150,7 @@ def _judge(
         if len(half) < test.min_events or not zero > 0:
             continue
         at_omega = half.contrast(omega, scale, sigma)[0]
-        reversal = _ratio(at_omega, half.contrast(-omega, scale, sigma)[0])
+        reversal = _reversal(half, omega, scale, sigma)
         # Refined from ω or from 0, whichever sharpens the half more: a half that another
         # rotation moves may lie beyond ω's basin.
         start = omega if at_omega >= zero else 0 * omega
@@ -164,8 +175,8 @@ def rotation_agreement(
     sub = problem.subset(2 * test.max_events, rng)
     sigma = config.sigma_px
     at_omega = sub.contrast(omega, 1, sigma)[0]
-    zero, back = (sub.contrast(w, 1, sigma)[0] for w in (np.zeros(3), -omega))
-    gain, reversal = _ratio(at_omega, zero), _ratio(at_omega, back)
+    gain = _ratio(at_omega, sub.contrast(np.zeros(3), 1, sigma)[0])
+    reversal = _reversal(sub, omega, 1, sigma)
     halves = [v for a, b in _halves(sub) for v in _judge(a, b, omega, config, test)]
     agreements = [a for a, _ in halves if math.isfinite(a)]
     worst = min(agreements, default=math.nan)

@@ -327,19 +327,10 @@ class CMaxEstimator:
         return index
 
     def _flags(
-        self,
-        problem: Problem,
-        omega: np.ndarray,
-        count: int,
-        span_us: float,
-        t_us: int,
-        age_s: float,
+        self, problem: Problem, omega: np.ndarray, count: int, span_us: float, t_us: int
     ) -> int:
         """The ``ill_posed`` bits of estimate ω of ``problem``: too few events (``count``,
-        hot pixels included), too little motion over ``span_us``, not one rotation (tested on
-        the events warped to the window's end, ``age_s`` after their mean time: the test's
-        thresholds were set there; warped to their middle, it passed half the estimates of a
-        still camera watching a person)."""
+        hot pixels included), too little motion over ``span_us``, not one rotation."""
         config, flags = self.config, 0
         if count < config.window.posed_events and config.window.fixed_events <= 0:
             flags |= ILL_FEW_EVENTS
@@ -353,8 +344,7 @@ class CMaxEstimator:
         if test is not None and t_us - self._tested_us >= 1000 * test.every_ms:
             rng = self._job_rng(_TEST, t_us)
             quiet = t_us - self._quiet_us <= 1000 * test.quiet_ms
-            at_end = replace(problem, dt=problem.dt + age_s)
-            job = self._submit(_TEST, rotation_flags, at_end, omega, moved, config, rng, quiet)
+            job = self._submit(_TEST, rotation_flags, problem, omega, moved, config, rng, quiet)
             if self._tested_us == _NEVER:  # no verdict would cover the stream's start: wait
                 self._verdict = job.result()
             else:
@@ -432,7 +422,7 @@ class CMaxEstimator:
         self._hessian = found.inv_hessian
         flat = problem.contrast(np.zeros(3), 1, config.sigma_px)[0]
         gain = found.contrast / flat if flat > 0 else math.nan
-        flags = self._flags(problem, omega, count, span, t_us, delay)
+        flags = self._flags(problem, omega, count, span, t_us)
         self._update_doubt(gain, flags)
         if config.accelerating:
             omega = self._at_end(t_us, span, omega, delay)

@@ -85,6 +85,17 @@ class Problem:
         half_span = float(np.abs(self.dt).max()) if len(self) else 0.0
         return max(half_span, 1e-4) * float(self.intrinsics[0])
 
+    def in_view(self, omega: np.ndarray, scale: int) -> np.ndarray:
+        """Whether each event, warped by ``omega`` (rad/s), lands on the image at pyramid
+        ``scale`` (N,) bool."""
+        level = self.level(scale)
+        width, height = math.ceil(self.width / level), math.ceil(self.height / level)
+        params = np.asarray(omega, dtype=np.float64)
+        u, v, valid, _, _ = iwe.warp(
+            self.bx, self.by, self.dt, params, self.intrinsics, float(level), False
+        )
+        return valid & (u >= 0) & (u <= width - 1) & (v >= 0) & (v <= height - 1)
+
     def contrast(
         self, omega: np.ndarray, scale: int, sigma: float, gradient: bool = False
     ) -> tuple[float, np.ndarray]:
