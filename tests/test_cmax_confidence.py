@@ -110,3 +110,29 @@ def test_weak_sharpening_of_little_motion_is_bit_2_and_disagreeing_halves_bit_4(
     one = point_track_events(np.radians([0.0, 60.0, 0.0]), seed=4, points=3000)
     problem = make_problem(one, CAMERA, config, np.random.default_rng(0))
     assert rotation_flags(problem, estimate_window(one, CAMERA), 2 * judge, config) == 0
+
+
+def test_the_reverse_rotation_blurs_still_events_alike_even_at_the_border():
+    # Still points by the right edge of the view, firing over 0.2 s; a pan that moves them
+    # 28 px one way or the other over the window. Nothing moves with either, so the ratio of
+    # their contrasts under ω and under -ω has its null of 1, whichever way ω pushes them off
+    # the image, on a window warped to its middle as the engines warp theirs.
+    rng = np.random.default_rng(0)
+    x, y = rng.integers(200, WIDTH, 300), rng.integers(5, HEIGHT - 5, 300)
+    which = rng.integers(0, 300, 6000)
+    t = np.sort(rng.integers(0, 200_000, 6000))
+    still = EventArray.from_arrays(x[which], y[which], t, np.ones(6000), width=WIDTH, height=HEIGHT)
+    config = CMaxConfig()
+    problem = make_problem(still, CAMERA, config, np.random.default_rng(0))
+    for pan in (40.0, -40.0):
+        omega = np.radians([0.0, pan, 0.0])
+        assert abs(rotation_agreement(problem, omega, config).reversal - 1.0) < 0.05
+    # Warped to the window's end instead, one way moves the oldest events twice as far, off the
+    # image and outward where the pinhole's perspective stretches them: the ratio over all
+    # events is then about 2, as a rotation's would be (so the windows are warped to their
+    # middle).
+    at_end = make_problem(still, CAMERA, config, np.random.default_rng(0), int(t[-1]))
+    omega = np.radians([0.0, 40.0, 0.0])
+    sigma = config.sigma_px
+    plain = at_end.contrast(omega, 1, sigma)[0] / at_end.contrast(-omega, 1, sigma)[0]
+    assert plain > 1.5
