@@ -10,7 +10,9 @@ way ω says. The test asks four questions of a window and its estimate ω; any "
    (top, bottom); the ratio is the contrast at ω over that at -ω. Where events do not move
    with ω (a still object's flicker, sensor noise, a part of the scene that moves otherwise),
    ω and -ω move them by the same distance in opposite directions and blur them alike (over
-   the events that both leave in view, so that the image's border favours neither): the
+   the events that both leave in view, so that the image's border favours neither, and on a
+   window warped to its middle: warped to one end, one of them moves the oldest events twice
+   as far, outward where perspective stretches them): the
    ratio's null is 1 whatever the texture, the event count or the image scale, where a gain
    over ω = 0 has no such null (ω = 0 leaves votes where they fell). Under a rotation, ω
    undoes the blur that -ω doubles: 1.05 to 2 for halves of real and simulated rotations on
