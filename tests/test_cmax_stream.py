@@ -92,6 +92,20 @@ def test_window_policy_counts_motion_bounds_and_fixed() -> None:
     assert len(dense) - WindowPolicy(fixed_events=777).start(dense, len(dense), 0, None) == 777
 
 
+
+def test_the_event_floor_lengthens_a_window_only_up_to_count_reach_times_the_motion_s() -> None:
+    t = np.arange(0, 1_000_000, 100)  # 10 events per ms: 3,000 events take 300 ms
+    policy = WindowPolicy(min_events=3000, target_px=5.0, count_reach=3.0)
+    # 500 px/s: 5 px take 10 ms; the events would reach back 300 ms (into an earlier, faster
+    # motion where the rate fell), the reach stops them at 30 ms.
+    j = policy.start(t, len(t), int(t[-1]), 500.0)
+    assert (t[-1] - t[j]) == pytest.approx(30_000, abs=200)
+    unbounded = WindowPolicy(min_events=3000, target_px=5.0, count_reach=1e9)
+    j = unbounded.start(t, len(t), int(t[-1]), 500.0)
+    assert (t[-1] - t[j]) == pytest.approx(300_000, abs=200)
+    # Without an estimate to size it by (a stream's start), the events alone decide.
+    assert len(t) - policy.start(t, len(t), int(t[-1]), None) == pytest.approx(3000, abs=1)
+
 def test_event_buffer_appends_and_forgets_in_order() -> None:
     buf = EventBuffer(capacity=8)
     for k in range(20):
