@@ -190,11 +190,13 @@ class _Engine:
         if len(index) < max(base.min_events, 2):
             return None
         problem = self._problem(index, t_us)
-        omega = self._maximize(problem, t_us).omega
+        found = self._maximize(problem, t_us)
+        omega, sharp = found.omega, found.contrast
         if self.whole is not None and self._whole_sharper(t_us, omega, index):
             omega = self.whole
+            sharp = problem.contrast(omega, 1, base.sigma_px)[0]
         flat = problem.contrast(np.zeros(3), 1, base.sigma_px)[0]
-        gain = problem.contrast(omega, 1, base.sigma_px)[0] / flat if flat > 0 else math.nan
+        gain = sharp / flat if flat > 0 else math.nan
         if math.isfinite(gain):
             self.best_gain = max(gain - 1.0, self.best_gain * 0.9)
         t = self.rays.t[index]
